@@ -1,0 +1,34 @@
+# sope_add_library(NAME name SRCS ... [DEPS ...] [PRIVATE_DEPS ...])
+#   One static library per module folder; the include root is the repository root, so
+#   headers are included as "decoder/decoder.h".
+function(sope_add_library)
+  cmake_parse_arguments(ARG "" "NAME" "SRCS;DEPS;PRIVATE_DEPS" ${ARGN})
+  add_library(${ARG_NAME} STATIC ${ARG_SRCS})
+  target_include_directories(${ARG_NAME} PUBLIC ${PROJECT_SOURCE_DIR})
+  target_link_libraries(${ARG_NAME} PUBLIC ${ARG_DEPS} PRIVATE ${ARG_PRIVATE_DEPS})
+endfunction()
+
+# sope_add_test(NAME name SRCS ... [DEPS ...] [LABELS ...])
+#   A GoogleTest binary; each TEST becomes one CTest entry (discovered before test time,
+#   so the build does not run the binaries).
+function(sope_add_test)
+  if(NOT SOPE_BUILD_TESTS)
+    return()
+  endif()
+  cmake_parse_arguments(ARG "" "NAME" "SRCS;DEPS;LABELS" ${ARGN})
+  add_executable(${ARG_NAME} ${ARG_SRCS})
+  target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} sope_test_support GTest::gtest
+                        GTest::gtest_main)
+  gtest_discover_tests(${ARG_NAME} DISCOVERY_MODE PRE_TEST
+                       PROPERTIES LABELS "${ARG_LABELS}" TIMEOUT 900)
+endfunction()
+
+# sope_add_bench(NAME name SRCS ... [DEPS ...])
+function(sope_add_bench)
+  if(NOT SOPE_BUILD_BENCH)
+    return()
+  endif()
+  cmake_parse_arguments(ARG "" "NAME" "SRCS;DEPS" ${ARGN})
+  add_executable(${ARG_NAME} ${ARG_SRCS})
+  target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} benchmark::benchmark)
+endfunction()

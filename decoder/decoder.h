@@ -1,0 +1,85 @@
+// Per-pixel decoding of a structured-light frame set into camera→projector
+// correspondences.
+#pragma once
+
+#include <string>
+
+#include <opencv2/core/mat.hpp>
+
+#include "core/frame_set.h"
+
+namespace sope {
+
+enum class BitDecision {
+  // Against the inverse frame when the set has it, else against (white + black) / 2.
+  kAuto,
+  // Always against the per-pixel threshold (white + black) / 2.
+  kThreshold,
+  // Robust to indirect light (direct/global separation in the spirit of Xu & Aliaga 2007
+  // and Moreno & Taubin's robust pixel classification): per-pixel direct and global
+  // components are estimated from the high-frequency frames; a bit is decided only when
+  // the pattern/inverse pair is unambiguous given them, otherwise the pixel is left
+  // invalid rather than guessed.
+  kRobust,
+};
+std::string ToString(BitDecision mode);
+BitDecision BitDecisionFromString(const std::string& text);
+
+struct DecoderOptions {
+  // Minimum white − black contrast, grey levels on an 8-bit scale (16-bit images are
+  // scaled by 1/257); darker pixels are shadow or off the projector.
+  double min_contrast = 10.0;
+  // Minimum |pattern − inverse| (or |pattern − threshold| without inverses) for a bit to
+  // count as decided, 8-bit grey levels. A pixel with any undecided bit is invalid.
+  double min_bit_contrast = 3.0;
+  BitDecision bit_decision = BitDecision::kAuto;
+  // kRobust only: fraction of the global component allowed to flip a decision (ε in
+  // Xu & Aliaga); larger leaves more pixels undecided.
+  double robust_margin = 0.1;
+  // Threads for the decode loop; 1 = single-threaded.
+  int num_threads = 1;
+
+  // Throws sope::Error naming an invalid value.
+  void Check() const;
+};
+
+struct CorrespondenceMap {
+  int projector_width = 0;
+  int projector_height = 0;
+  // Projector column / row per camera pixel, CV_32FC1 of the camera size, in projector
+  // pixels with OpenCV's centre convention; NaN where invalid. Empty when the axis is not
+  // coded. When low bits are omitted the value is the centre of the coded block.
+  cv::Mat proj_x;
+  cv::Mat proj_y;
+  // CV_8UC1: 255 where every coded axis decoded.
+  cv::Mat mask;
+  // CV_32FC1 in [0, 1]: the weakest bit's margin relative to the white−black contrast;
+  // 0 where invalid.
+  cv::Mat confidence;
+  // Quantum of the decoded coordinates, projector pixels (2^omitted low bits).
+  float step_x = 1.0f;
+  float step_y = 1.0f;
+
+  bool HasX() const { return !proj_x.empty(); }
+  bool HasY() const { return !proj_y.empty(); }
+  int width() const { return mask.cols; }
+  int height() const { return mask.rows; }
+  // Number of valid pixels.
+  size_t CountValid() const;
+};
+
+// Decodes a checked frame set. Throws sope::Error on invalid options or an inconsistent
+// set (e.g. no inverses and no white/black for the threshold).
+CorrespondenceMap Decode(const FrameSet& frame_set, const DecoderOptions& options = {});
+
+// Writes proj_x.exr / proj_y.exr (float, NaN invalid), mask.png, confidence.exr,
+// correspondence.json (projector size, steps), and the colourised views proj_x.png /
+// proj_y.png (hue = coordinate, black = invalid) and confidence.png into `directory`,
+// creating it. Atomic per file.
+void WriteCorrespondenceMap(const std::string& directory, const CorrespondenceMap& map);
+// Reads what WriteCorrespondenceMap wrote; throws sope::Error on missing/mismatched files.
+CorrespondenceMap ReadCorrespondenceMap(const std::string& directory);
+// A colour picture of one axis (BGR, CV_8UC3): coordinate as hue, invalid pixels black.
+cv::Mat ColorizeCoordinate(const cv::Mat& coordinate, int projector_size);
+
+}  // namespace sope
