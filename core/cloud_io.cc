@@ -7,6 +7,7 @@
 
 #include <fmt/format.h>
 #include <pcl/PCLPointCloud2.h>
+#include <pcl/console/print.h>
 #include <pcl/conversions.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/point_types.h>
@@ -49,20 +50,28 @@ PointCloud ReadPcdCloud(const std::string& path) {
   RequireReadableFile(path, "point cloud");
   pcl::PCLPointCloud2 blob;
   pcl::PCDReader reader;
+  // PCL reports problems on the console; we report them as one error instead.
+  const pcl::console::VERBOSITY_LEVEL verbosity = pcl::console::getVerbosityLevel();
+  pcl::console::setVerbosityLevel(pcl::console::L_ALWAYS);
   int result = -1;
   try {
     result = reader.read(path, blob);
   } catch (const std::exception& e) {
+    pcl::console::setVerbosityLevel(verbosity);
     SOPE_THROW("point cloud {}: not a valid PCD file ({})", path, e.what());
   }
+  pcl::console::setVerbosityLevel(verbosity);
   SOPE_CHECK(result >= 0, "point cloud {}: not a valid or complete PCD file", path);
-  bool has_xyz = false, has_rgb = false, has_normal = false;
+  int xyz_fields = 0;
+  bool has_rgb = false, has_normal = false;
   for (const auto& field : blob.fields) {
-    has_xyz |= field.name == "x";
+    xyz_fields += field.name == "x" || field.name == "y" || field.name == "z";
     has_rgb |= field.name == "rgb" || field.name == "rgba";
     has_normal |= field.name == "normal_x";
   }
-  SOPE_CHECK(has_xyz, "point cloud {}: PCD has no x/y/z fields", path);
+  SOPE_CHECK(xyz_fields == 3, "point cloud {}: PCD lacks x, y, z fields", path);
+  SOPE_CHECK(blob.data.size() >= static_cast<size_t>(blob.width) * blob.height * blob.point_step,
+             "point cloud {}: PCD data is truncated", path);
   PointCloud cloud;
   pcl::PointCloud<pcl::PointXYZ> xyz;
   pcl::fromPCLPointCloud2(blob, xyz);

@@ -1,0 +1,2 @@
+// Placeholder until the pattern tests land.
+#include <gtest/gtest.h>
