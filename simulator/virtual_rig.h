@@ -56,7 +56,8 @@ struct SceneObject {
   Rigid3d cam_from_model;  // pose in the camera frame
   double albedo = 0.8;     // Lambertian reflectance in [0, 1]
   // Optional spatially varying albedo (e.g. a printed checkerboard), evaluated at the
-  // surface point in model coordinates; overrides `albedo` when set.
+  // surface point in model coordinates; overrides `albedo` when set. Called during
+  // SetScene() only, from several threads at once (it must be thread-safe).
   std::function<double(const Eigen::Vector3d& point_in_model)> albedo_map;
 };
 

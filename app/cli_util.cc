@@ -1,0 +1,98 @@
+#include "app/cli_util.h"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include "core/error.h"
+
+namespace sope {
+namespace cli {
+
+void ParseSize(const std::string& text, const std::string& option, int* width, int* height) {
+  const size_t x = text.find_first_of("xX");
+  SOPE_CHECK(x != std::string::npos, "{} '{}': expected WIDTHxHEIGHT, e.g. 1024x768", option,
+             text);
+  try {
+    size_t used_w = 0, used_h = 0;
+    *width = std::stoi(text.substr(0, x), &used_w);
+    *height = std::stoi(text.substr(x + 1), &used_h);
+    SOPE_CHECK(used_w == x && used_h == text.size() - x - 1, "trailing characters");
+  } catch (const std::exception&) {
+    SOPE_THROW("{} '{}': expected WIDTHxHEIGHT, e.g. 1024x768", option, text);
+  }
+  SOPE_CHECK(*width > 0 && *height > 0 && *width <= 32768 && *height <= 32768,
+             "{} '{}': sizes must be in 1..32768", option, text);
+}
+
+std::vector<double> ParseNumbers(const std::string& text, const std::string& option) {
+  std::vector<double> numbers;
+  std::stringstream stream(text);
+  std::string item;
+  while (std::getline(stream, item, ',')) {
+    try {
+      size_t used = 0;
+      numbers.push_back(std::stod(item, &used));
+      SOPE_CHECK(used == item.size(), "trailing characters");
+    } catch (const std::exception&) {
+      SOPE_THROW("{} '{}': '{}' is not a number", option, text, item);
+    }
+    SOPE_CHECK(std::isfinite(numbers.back()), "{} '{}': numbers must be finite", option, text);
+  }
+  return numbers;
+}
+
+Rigid3d ParsePose(const std::string& text, const std::string& option) {
+  const std::vector<double> v = ParseNumbers(text, option);
+  SOPE_CHECK(v.size() == 6, "{} '{}': expected rx,ry,rz,tx,ty,tz (degrees, metres)", option,
+             text);
+  constexpr double kDegree = M_PI / 180.0;
+  return Rigid3d(RotationFromEulerXYZ(v[0] * kDegree, v[1] * kDegree, v[2] * kDegree),
+                 Eigen::Vector3d(v[3], v[4], v[5]));
+}
+
+int Parse(CLI::App& app, int argc, char** argv) {
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    const int code = app.exit(e);
+    return code == 0 ? 0 : 2;
+  }
+  return -1;
+}
+
+void LoggingFlags::Add(CLI::App& app) {
+  app.add_flag("-v,--verbose", verbose, "More detail on stderr");
+  app.add_flag("-q,--quiet", quiet, "Only errors on stderr");
+}
+
+void LoggingFlags::Apply() const {
+  spdlog::set_level(quiet ? spdlog::level::err
+                          : (verbose ? spdlog::level::debug : spdlog::level::info));
+}
+
+Progress::Progress(std::string label, size_t total)
+    : label_(std::move(label)), total_(total), enabled_(::isatty(STDERR_FILENO) == 1) {}
+
+Progress::~Progress() {
+  if (enabled_) std::fputs("\n", stderr);
+}
+
+void Progress::Update(size_t done) {
+  if (!enabled_ || total_ == 0) return;
+  constexpr int kWidth = 30;
+  const int filled = static_cast<int>(kWidth * done / total_);
+  std::fputs(fmt::format("\r{} [{:<{}}] {}/{}", label_, std::string(filled, '#'), kWidth,
+                         done, total_)
+                 .c_str(),
+             stderr);
+  std::fflush(stderr);
+}
+
+}  // namespace cli
+}  // namespace sope

@@ -1,0 +1,43 @@
+// Flags shared by several commands: the pattern sequence, decoder and triangulation
+// options. Each binds CLI11 options to an options struct and checks it.
+#pragma once
+
+#include <string>
+
+#include <CLI/CLI.hpp>
+
+#include "calibration/triangulation.h"
+#include "decoder/decoder.h"
+#include "projector/patterns.h"
+
+namespace sope {
+namespace cli {
+
+struct PatternFlags {
+  std::string axes = "xy";
+  std::string code = "gray";
+  bool no_inverse = false;
+  bool no_white_black = false;
+  int skip_low_bits = 0;
+
+  void Add(CLI::App& app);
+  // Options for a projector of the given size; checked.
+  PatternOptions ToOptions(int projector_width, int projector_height) const;
+};
+
+struct DecoderFlags {
+  DecoderOptions options;
+  std::string mode = "auto";
+  void Add(CLI::App& app);
+  DecoderOptions ToOptions() const;
+};
+
+struct TriangulationFlags {
+  TriangulationOptions options;
+  std::string method = "midpoint";
+  void Add(CLI::App& app);
+  TriangulationOptions ToOptions() const;
+};
+
+}  // namespace cli
+}  // namespace sope
