@@ -34,6 +34,10 @@ void DecoderFlags::Add(CLI::App& app) {
   app.add_option("--min-bit-contrast", options.min_bit_contrast,
                  "Minimum pattern-inverse difference for a bit to count as decided")
       ->capture_default_str();
+  app.add_option("--min-relative-bit-contrast", options.min_relative_bit_contrast,
+                 "Also require |pattern-inverse| >= this fraction of white-black (0 = off; "
+                 "0.15-0.25 with sharp optics)")
+      ->capture_default_str();
   app.add_option("--decode-mode", mode,
                  "Bit decisions: auto (inverse if present), threshold, robust (indirect light)")
       ->capture_default_str();

@@ -1,2 +1,915 @@
-// Placeholder: being implemented.
-namespace sope {}
+#include "decoder/decoder.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <memory>
+#include <system_error>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "core/error.h"
+#include "core/file_util.h"
+#include "decoder/decoder_internal.h"
+#include "projector/patterns.h"
+
+namespace sope {
+namespace internal {
+namespace {
+
+// Pixels decoded together: every frame is read once per chunk, the per-chunk state
+// (code words, margins, contrast) stays in L1/L2 while all frames stream past it.
+constexpr int kChunkPixels = 4096;
+// kRobust: the direct/global split uses the pattern/inverse pairs of this many of the
+// highest-frequency (lowest) bits of each axis. Two, because Gray-code stripe edges of
+// different bits never coincide, so the max/min over two bits sees every pixel inside a
+// stripe even where the camera blurs the finest one; not more, because the global light
+// under wider stripes is no longer half of its full value (Nayar et al. 2006 need high
+// frequencies) and the max/min would pick up that imbalance.
+constexpr int kDirectGlobalBitsPerAxis = 2;
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+// Software prefetch (PrefetchNextChunk): one chunk ahead, issued every block of pixels,
+// into all cache levels (__builtin_prefetch locality 3). Measured on the statue set
+// (bench/decode_bench): ~25 % faster than relying on the hardware prefetchers.
+constexpr size_t kCacheLineBytes = 64;
+constexpr int kPrefetchAheadPixels = kChunkPixels;
+constexpr int kPrefetchBlockPixels = 256;
+constexpr int kPrefetchLocality = 3;
+constexpr int kAxisX = static_cast<int>(PatternAxis::kX);
+constexpr int kAxisY = static_cast<int>(PatternAxis::kY);
+// A pixel's weak bit is resolved to a stripe boundary only when its decided bits clear
+// this many times the bit threshold (AxisCoordinate). Measured on the real captures
+// (tests/real_data_decode_test: 2× keeps the pixels resolved so as consistent with their
+// neighbours as OpenCV's own pixels on the statue, 1.7 points less on the dark, speckled
+// kibekibe paper; 3× closes half that gap but loses 1% of the lit pixels of the virtual
+// rig's darker scenes).
+constexpr int kSolidMarginFactor = 2;
+constexpr int kHigh = 0;  // code planes
+constexpr int kLow = 1;
+
+// The kernels below walk their n pixels in blocks of kPrefetchBlockPixels and first
+// prefetch the same block of the next chunk of every frame they read. The hardware
+// prefetchers stop at 4 KiB page boundaries, and with one page per frame and chunk they
+// would restart cold on each of the ~44 streams; issuing the prefetches interleaved with
+// the work (not as a burst) keeps the core's miss buffers from filling up. Blocks span
+// several cache lines so that the inner loops run their vector bodies. Prefetches never
+// fault, so running past the end of a frame is harmless. (Plain loops rather than a
+// helper taking a lambda: through a closure GCC loses __restrict and stops vectorising.)
+template <typename Pixel, size_t kStreams>
+inline void PrefetchNextChunk(int block, const std::array<const Pixel*, kStreams>& streams) {
+  constexpr int kLinePixels = static_cast<int>(kCacheLineBytes / sizeof(Pixel));
+  for (const Pixel* stream : streams) {
+    for (int line = 0; line < kPrefetchBlockPixels; line += kLinePixels) {
+      __builtin_prefetch(stream + kPrefetchAheadPixels + block + line, /*rw=*/0, kPrefetchLocality);
+    }
+  }
+}
+
+inline int BlockEnd(int block, int n) { return std::min(block + kPrefetchBlockPixels, n); }
+
+template <typename Pixel>
+struct PixelTraits;
+template <>
+struct PixelTraits<uint8_t> {
+  using Wide = int16_t;  // holds 2·p − (w + b) and 2·|p − p̄|
+  static constexpr double kLevelsPerGreyLevel = 1.0;
+};
+template <>
+struct PixelTraits<uint16_t> {
+  using Wide = int32_t;
+  static constexpr double kLevelsPerGreyLevel = 257.0;
+};
+
+// Margins are kept in grey levels when every bit has an inverse, and in half grey levels
+// (doubled) when some bit is decided against the threshold, so that 2|p − p̄| and
+// |2p − (w + b)| = 2|p − threshold| compare on one scale.
+int MarginScale(const DecodePlan& plan) { return plan.any_threshold_bit ? 2 : 1; }
+
+// Option thresholds converted to image levels (integers compare exactly: m ≥ t ⇔
+// m ≥ ⌈t⌉ for integer m).
+struct Thresholds {
+  int min_contrast = 0;
+  int min_bit_margin = 0;  // in levels / MarginScale
+  // min_relative_bit_contrast × margin scale: per-pixel threshold = this × contrast.
+  float relative_bit_margin = 0.0f;
+  int margin_scale = 1;
+  float min_direct = 0.0f;
+  float robust_margin = 0.0f;
+  float black_level = 0.0f;
+};
+
+struct Outputs {
+  float* proj[2] = {nullptr, nullptr};  // nullptr when the axis is not coded
+  uint8_t* mask = nullptr;
+  float* confidence = nullptr;
+};
+
+// Code words are accumulated 8 bits per plane (Workspace::code), so that every operation
+// of the per-bit loops is on bytes.
+//
+// code ← 2·code + [p > p̄]; weak ← 2·weak + [kScale·|p − p̄| < min_margin];
+// margin ← min(margin, kScale·|p − p̄|) over the decided (not weak) bits; optionally
+// max_diff ← max(max_diff, |p − p̄|) as the contrast when there are no white/black frames.
+// kPerPixelThreshold false: min_margin[0] holds one threshold for all pixels (no relative
+// threshold), which keeps the hot loop to its two streams.
+template <typename Pixel, typename Margin, int kScale, bool kTrackMaxDiff,
+          bool kPerPixelThreshold = true>
+void AccumulateInverseBit(const Pixel* __restrict pattern, const Pixel* __restrict inverse, int n,
+                          const Margin* __restrict min_margin, uint8_t* __restrict code,
+                          uint8_t* __restrict weak, Margin* __restrict margin,
+                          Pixel* __restrict max_diff) {
+  const Margin uniform_margin = min_margin[0];
+  for (int block = 0; block < n; block += kPrefetchBlockPixels) {
+    PrefetchNextChunk<Pixel, 2>(block, {pattern, inverse});
+    for (int i = block, end = BlockEnd(block, n); i < end; ++i) {
+      const Pixel a = pattern[i];
+      const Pixel b = inverse[i];
+      const Pixel diff = static_cast<Pixel>(std::max(a, b) - std::min(a, b));
+      const Margin scaled = static_cast<Margin>(kScale * diff);
+      const bool undecided = scaled < (kPerPixelThreshold ? min_margin[i] : uniform_margin);
+      code[i] = static_cast<uint8_t>((code[i] << 1) | (a > b));
+      weak[i] = static_cast<uint8_t>((weak[i] << 1) | undecided);
+      margin[i] = std::min(margin[i], undecided ? std::numeric_limits<Margin>::max() : scaled);
+      if constexpr (kTrackMaxDiff) max_diff[i] = std::max(max_diff[i], diff);
+    }
+  }
+}
+
+// Against the per-pixel threshold (w + b) / 2 in doubled units: d = 2p − (w + b);
+// code ← 2·code + [d > 0]; weak ← 2·weak + [|d| < min_margin];
+// margin ← min(margin, |d|) = 2·|p − threshold| over the decided bits.
+template <typename Pixel, typename Wide>
+void AccumulateThresholdBit(const Pixel* __restrict pattern,
+                            const Wide* __restrict white_plus_black, int n,
+                            const Wide* __restrict min_margin, uint8_t* __restrict code,
+                            uint8_t* __restrict weak, Wide* __restrict margin) {
+  for (int block = 0; block < n; block += kPrefetchBlockPixels) {
+    PrefetchNextChunk<Pixel, 1>(block, {pattern});
+    for (int i = block, end = BlockEnd(block, n); i < end; ++i) {
+      const Wide d = static_cast<Wide>(2 * static_cast<Wide>(pattern[i]) - white_plus_black[i]);
+      const Wide magnitude = static_cast<Wide>(d < 0 ? -d : d);
+      const bool undecided = magnitude < min_margin[i];
+      code[i] = static_cast<uint8_t>((code[i] << 1) | (d > 0));
+      weak[i] = static_cast<uint8_t>((weak[i] << 1) | undecided);
+      margin[i] = std::min(margin[i], undecided ? std::numeric_limits<Wide>::max() : magnitude);
+    }
+  }
+}
+
+// The robust rules per bit against per-pixel integer bounds (RobustBounds, precomputed).
+template <typename Pixel, typename Wide>
+void AccumulateRobustBit(const Pixel* __restrict pattern, const Pixel* __restrict inverse, int n,
+                         const Wide* __restrict direct_minus_slack,
+                         const Wide* __restrict global_plus_slack,
+                         const uint8_t* __restrict direct_dominates,
+                         const uint8_t* __restrict too_dark, const Pixel* __restrict min_margin,
+                         uint8_t* __restrict code, uint8_t* __restrict weak,
+                         Pixel* __restrict margin) {
+  for (int block = 0; block < n; block += kPrefetchBlockPixels) {
+    PrefetchNextChunk<Pixel, 2>(block, {pattern, inverse});
+    for (int i = block, end = BlockEnd(block, n); i < end; ++i) {
+      const Pixel a = pattern[i];
+      const Pixel b = inverse[i];
+      const uint8_t outcome =
+          ClassifyRobustBit<Wide>(a, b, direct_minus_slack[i], global_plus_slack[i],
+                                  direct_dominates[i] != 0, too_dark[i] != 0);
+      code[i] = static_cast<uint8_t>((code[i] << 1) | (outcome & kRobustValue));
+      const Pixel diff = static_cast<Pixel>(std::max(a, b) - std::min(a, b));
+      const bool undecided = (outcome & kRobustUnknown) | (diff < min_margin[i]);
+      weak[i] = static_cast<uint8_t>((weak[i] << 1) | undecided);
+      margin[i] = std::min(margin[i], undecided ? std::numeric_limits<Pixel>::max() : diff);
+    }
+  }
+}
+
+// contrast = white − black; white_plus_black = white + black (twice the threshold).
+template <typename Pixel, typename Wide>
+void ComputeWhiteBlack(const Pixel* __restrict white, const Pixel* __restrict black, int n,
+                       Wide* __restrict contrast, Wide* __restrict white_plus_black) {
+  for (int block = 0; block < n; block += kPrefetchBlockPixels) {
+    PrefetchNextChunk<Pixel, 2>(block, {white, black});
+    for (int i = block, end = BlockEnd(block, n); i < end; ++i) {
+      contrast[i] = static_cast<Wide>(static_cast<Wide>(white[i]) - black[i]);
+      white_plus_black[i] = static_cast<Wide>(static_cast<Wide>(white[i]) + black[i]);
+    }
+  }
+}
+
+// Per-pixel bit thresholds in margin units: max(floor, ⌈relative · contrast⌉), or the floor
+// alone without a contrast (no white/black frames). `relative` already carries the margin
+// scale.
+template <typename Margin, typename Wide>
+void ComputeBitThresholds(int n, const Wide* __restrict contrast, int floor, float relative,
+                          Margin* __restrict threshold) {
+  const Margin floor_margin =
+      static_cast<Margin>(std::min<int>(floor, std::numeric_limits<Margin>::max()));
+  if (contrast == nullptr || relative <= 0.0f) {
+    std::fill_n(threshold, n, floor_margin);
+    return;
+  }
+  constexpr float kMax = static_cast<float>(std::numeric_limits<Margin>::max());
+  for (int i = 0; i < n; ++i) {
+    const float scaled = std::min(std::ceil(relative * static_cast<float>(contrast[i])), kMax);
+    threshold[i] = std::max(floor_margin, static_cast<Margin>(std::max(scaled, 0.0f)));
+  }
+}
+
+template <typename Pixel>
+void AccumulateMinMax(const Pixel* __restrict frame, int n, Pixel* __restrict level_max,
+                      Pixel* __restrict level_min) {
+  for (int block = 0; block < n; block += kPrefetchBlockPixels) {
+    PrefetchNextChunk<Pixel, 1>(block, {frame});
+    for (int i = block, end = BlockEnd(block, n); i < end; ++i) {
+      level_max[i] = std::max(level_max[i], frame[i]);
+      level_min[i] = std::min(level_min[i], frame[i]);
+    }
+  }
+}
+
+// Per-pixel integer bounds of the robust rules from the max/min over the high-frequency
+// frames; clamped to [−1, max + 1], which keeps every comparison with a pixel exact.
+template <typename Pixel, typename Wide>
+void ComputeRobustBounds(int n, const Pixel* __restrict level_max,
+                         const Pixel* __restrict level_min, const Thresholds& thresholds,
+                         Wide* __restrict direct_minus_slack, Wide* __restrict global_plus_slack,
+                         uint8_t* __restrict direct_dominates, uint8_t* __restrict too_dark) {
+  constexpr float kLowest = -1.0f;
+  constexpr float kHighest = static_cast<float>(std::numeric_limits<Pixel>::max()) + 1.0f;
+  const float black_level = thresholds.black_level;
+  const float min_direct = thresholds.min_direct;
+  const float robust_margin = thresholds.robust_margin;
+  for (int i = 0; i < n; ++i) {
+    const DirectGlobal light = SeparateDirectGlobal(static_cast<float>(level_max[i]),
+                                                    static_cast<float>(level_min[i]), black_level);
+    const RobustBounds<float> bounds = RobustBoundsOf(light, min_direct, robust_margin);
+    const float low = std::ceil(bounds.direct_minus_slack);
+    const float high = std::floor(bounds.global_plus_slack);
+    direct_minus_slack[i] = static_cast<Wide>(std::min(std::max(low, kLowest), kHighest));
+    global_plus_slack[i] = static_cast<Wide>(std::min(std::max(high, kLowest), kHighest));
+    direct_dominates[i] = bounds.direct_dominates;
+    too_dark[i] = bounds.too_dark;
+  }
+}
+
+// How one axis treats bits whose margin is below the threshold ("weak" bits).
+struct AxisFinish {
+  const float* lut = nullptr;  // code word → coordinate
+  bool gray = true;            // Gray code (else plain binary)
+  // Largest coordinate difference of two neighbouring code words: the coordinate step.
+  float max_neighbour_gap = 1.0f;
+};
+
+// Coordinate of one axis of a pixel with weak bits (`weak` ≠ 0 on some axis). For a Gray
+// code the pixel may sit on the boundary between two neighbouring projector columns
+// (rows) c and c + 1, whose code words differ in exactly one bit — the one stripe edge
+// there, undecidable because the pixel straddles it. Both words are formed from the
+// decided bits; when they decode to neighbours the coordinate is their midpoint — the
+// boundary itself, within half a step of the truth — and otherwise the pixel is invalid
+// (`ok` false): a weak bit anywhere else is never guessed. The caller only asks for
+// `solid` pixels, whose decided bits all clear kSolidMarginFactor × the bit threshold:
+// where light is scarce a decided bit may be wrong too, and the boundary would be a guess.
+// A binary code flips a run of bits at once at many boundaries, where noise may decide
+// some of them either way; its weak bits always invalidate the pixel.
+struct AxisValue {
+  float coordinate;
+  bool ok;
+};
+inline AxisValue BoundaryCoordinate(const AxisFinish& axis, int code, int weak) {
+  if (weak == 0) return {axis.lut[code], true};
+  if (!axis.gray) return {kNaN, false};
+  const float a = axis.lut[code & ~weak];
+  const float b = axis.lut[code | weak];
+  const float gap = std::abs(a - b);
+  return {0.5f * (a + b), gap > 0.0f && gap <= axis.max_neighbour_gap};  // false for NaN
+}
+
+// Validity, coordinates and confidence of n pixels from their code words, weak-bit masks
+// and weakest decided margins (in units of margin_scale × grey levels). Confidence is that
+// margin relative to the contrast, halved for a pixel resolved at a boundary. The first
+// pass is branch-free so that it vectorises (the table reads as gathers) and takes pixels
+// without weak bits; the second visits the few pixels with weak bits (BoundaryCoordinate).
+template <typename Margin, typename Wide>
+void FinishPixels(int n, const uint8_t* __restrict code_x_high,
+                  const uint8_t* __restrict code_x_low, const uint8_t* __restrict code_y_high,
+                  const uint8_t* __restrict code_y_low, const uint8_t* __restrict weak_x_high,
+                  const uint8_t* __restrict weak_x_low, const uint8_t* __restrict weak_y_high,
+                  const uint8_t* __restrict weak_y_low, const AxisFinish& axis_x,
+                  const AxisFinish& axis_y, const Wide* __restrict contrast,
+                  const Margin* __restrict margin, int min_contrast, int solid_margin,
+                  float margin_scale, float* __restrict out_x, float* __restrict out_y,
+                  uint8_t* __restrict mask, float* __restrict confidence) {
+  const float* __restrict lut_x = axis_x.lut;
+  const float* __restrict lut_y = axis_y.lut;
+  for (int i = 0; i < n; ++i) {
+    const float x = lut_x[(code_x_high[i] << 8) | code_x_low[i]];
+    const float y = lut_y[(code_y_high[i] << 8) | code_y_low[i]];
+    const int c = contrast[i];
+    const int m = margin[i];
+    const bool no_weak =
+        (weak_x_high[i] | weak_x_low[i] | weak_y_high[i] | weak_y_low[i]) == 0;
+    // x != x: NaN, the code lies beyond the projector.
+    const bool valid = (c >= min_contrast) & no_weak & (x == x) & (y == y);
+    out_x[i] = valid ? x : kNaN;
+    out_y[i] = valid ? y : kNaN;
+    mask[i] = static_cast<uint8_t>(valid ? 255 : 0);
+    const float relative =
+        static_cast<float>(m) / (margin_scale * static_cast<float>(std::max(c, 1)));
+    confidence[i] = valid ? std::min(relative, 1.0f) : 0.0f;
+  }
+  for (int i = 0; i < n; ++i) {
+    const int weak_x = (weak_x_high[i] << 8) | weak_x_low[i];
+    const int weak_y = (weak_y_high[i] << 8) | weak_y_low[i];
+    if ((weak_x | weak_y) == 0 || contrast[i] < min_contrast || margin[i] < solid_margin) {
+      continue;
+    }
+    const AxisValue vx = BoundaryCoordinate(axis_x, (code_x_high[i] << 8) | code_x_low[i], weak_x);
+    const AxisValue vy = BoundaryCoordinate(axis_y, (code_y_high[i] << 8) | code_y_low[i], weak_y);
+    if (!vx.ok || !vy.ok || std::isnan(vx.coordinate) || std::isnan(vy.coordinate)) continue;
+    out_x[i] = vx.coordinate;
+    out_y[i] = vy.coordinate;
+    mask[i] = 255;
+    const float relative = static_cast<float>(margin[i]) /
+                           (margin_scale * static_cast<float>(std::max<int>(contrast[i], 1)));
+    confidence[i] = 0.5f * std::min(relative, 1.0f);
+  }
+}
+
+// Per-thread scratch for one chunk.
+template <typename Pixel>
+struct Workspace {
+  using Wide = typename PixelTraits<Pixel>::Wide;
+  // Code word of each axis: [axis][kHigh] holds bits 8 and up, [axis][kLow] bits 0..7.
+  alignas(64) uint8_t code[2][2][kChunkPixels];
+  // Weak bits (margin below the threshold), laid out like `code`.
+  alignas(64) uint8_t weak[2][2][kChunkPixels];
+  alignas(64) Wide contrast[kChunkPixels];          // white − black (or max |p − p̄|)
+  alignas(64) Wide white_plus_black[kChunkPixels];  // 2 × the threshold
+  alignas(64) Pixel margin[kChunkPixels];           // min |p − p̄| (inverse-only sets)
+  alignas(64) Pixel min_margin[kChunkPixels];       // per-pixel bit thresholds, same units
+  alignas(64) Wide wide_min_margin[kChunkPixels];   // … in wide_margin's units, inverse bits
+  alignas(64) Wide wide_min_margin_threshold[kChunkPixels];  // … threshold bits
+  alignas(64) Wide wide_margin[kChunkPixels];       // min 2|p − p̄| or |2p − (w + b)|
+  alignas(64) Pixel max_diff[kChunkPixels];
+  alignas(64) Pixel level_max[kChunkPixels];
+  alignas(64) Pixel level_min[kChunkPixels];
+  alignas(64) Wide direct_minus_slack[kChunkPixels];  // kRobust bounds (RobustBounds)
+  alignas(64) Wide global_plus_slack[kChunkPixels];
+  alignas(64) uint8_t direct_dominates[kChunkPixels];
+  alignas(64) uint8_t too_dark[kChunkPixels];
+  alignas(64) float discard[kChunkPixels];  // coordinates of an axis that is not coded
+};
+
+template <typename Pixel>
+class ChunkDecoder {
+ public:
+  using Wide = typename PixelTraits<Pixel>::Wide;
+
+  ChunkDecoder(const DecodePlan& plan, const std::vector<const Pixel*>& frames,
+               const Thresholds& thresholds, const Outputs& outputs)
+      : plan_(plan),
+        frames_(frames),
+        thresholds_(thresholds),
+        outputs_(outputs),
+        workspace_(std::make_unique<Workspace<Pixel>>()) {}
+
+  // Decodes pixels [begin, begin + n) of the (continuous) images.
+  void Decode(size_t begin, int n) {
+    Workspace<Pixel>& ws = *workspace_;
+    std::memset(ws.code, 0, sizeof(ws.code));
+    std::memset(ws.weak, 0, sizeof(ws.weak));
+    const bool has_white_black = plan_.white >= 0 && plan_.black >= 0;
+    if (has_white_black) ComputeContrast(begin, n);
+
+    if (plan_.mode == BitDecision::kRobust) {
+      EstimateDirectGlobal(begin, n);
+      std::fill_n(ws.margin, n, std::numeric_limits<Pixel>::max());
+      ComputeBitThresholds(n, has_white_black ? ws.contrast : nullptr, thresholds_.min_bit_margin,
+                           thresholds_.relative_bit_margin, ws.min_margin);
+      ForEachBit([&](uint8_t* code, uint8_t* weak, const BitFrames& bit) {
+        AccumulateRobustBit(Frame(bit.pattern, begin), Frame(bit.inverse, begin), n,
+                            ws.direct_minus_slack, ws.global_plus_slack, ws.direct_dominates,
+                            ws.too_dark, ws.min_margin, code, weak, ws.margin);
+      });
+      if (!has_white_black) {
+        for (int i = 0; i < n; ++i) ws.contrast[i] = ws.level_max[i] - ws.level_min[i];
+      }
+      Finish(begin, n, ws.margin);
+    } else if (!plan_.any_threshold_bit) {
+      // The hot path: every bit against its inverse, margins in the pixel type.
+      std::fill_n(ws.margin, n, std::numeric_limits<Pixel>::max());
+      ComputeBitThresholds(n, has_white_black ? ws.contrast : nullptr, thresholds_.min_bit_margin,
+                           thresholds_.relative_bit_margin, ws.min_margin);
+      const Pixel* min_margin = ws.min_margin;
+      if (has_white_black && thresholds_.relative_bit_margin > 0.0f) {
+        ForEachBit([&](uint8_t* code, uint8_t* weak, const BitFrames& bit) {
+          AccumulateInverseBit<Pixel, Pixel, 1, false, true>(Frame(bit.pattern, begin),
+                                                             Frame(bit.inverse, begin), n,
+                                                             min_margin, code, weak, ws.margin,
+                                                             nullptr);
+        });
+      } else if (has_white_black) {
+        ForEachBit([&](uint8_t* code, uint8_t* weak, const BitFrames& bit) {
+          AccumulateInverseBit<Pixel, Pixel, 1, false, false>(Frame(bit.pattern, begin),
+                                                              Frame(bit.inverse, begin), n,
+                                                              min_margin, code, weak, ws.margin,
+                                                              nullptr);
+        });
+      } else {
+        std::fill_n(ws.max_diff, n, Pixel{0});
+        ForEachBit([&](uint8_t* code, uint8_t* weak, const BitFrames& bit) {
+          AccumulateInverseBit<Pixel, Pixel, 1, true>(Frame(bit.pattern, begin),
+                                                      Frame(bit.inverse, begin), n, min_margin,
+                                                      code, weak, ws.margin, ws.max_diff);
+        });
+        for (int i = 0; i < n; ++i) ws.contrast[i] = ws.max_diff[i];
+      }
+      Finish(begin, n, ws.margin);
+    } else {
+      // Some bits against the threshold: margins in doubled units (MarginScale).
+      std::fill_n(ws.wide_margin, n, std::numeric_limits<Wide>::max());
+      // Doubled units: 2|p − p̄| ≥ 2·r·C for inverse bits, 2|p − t| ≥ r·C for threshold bits
+      // (|p − t| is half of |p − p̄| for the same mix of light).
+      ComputeBitThresholds(n, ws.contrast, thresholds_.min_bit_margin,
+                           thresholds_.relative_bit_margin, ws.wide_min_margin);
+      ComputeBitThresholds(n, ws.contrast, thresholds_.min_bit_margin,
+                           0.5f * thresholds_.relative_bit_margin, ws.wide_min_margin_threshold);
+      ForEachBit([&](uint8_t* code, uint8_t* weak, const BitFrames& bit) {
+        if (bit.inverse >= 0) {
+          AccumulateInverseBit<Pixel, Wide, 2, false>(Frame(bit.pattern, begin),
+                                                      Frame(bit.inverse, begin), n,
+                                                      ws.wide_min_margin, code, weak,
+                                                      ws.wide_margin, nullptr);
+        } else {
+          AccumulateThresholdBit(Frame(bit.pattern, begin), ws.white_plus_black, n,
+                                 ws.wide_min_margin_threshold, code, weak, ws.wide_margin);
+        }
+      });
+      Finish(begin, n, ws.wide_margin);
+    }
+  }
+
+ private:
+  // The chunk of frame `index` that starts at pixel `begin`.
+  const Pixel* Frame(int index, size_t begin) const { return frames_[index] + begin; }
+
+  // Calls function(code plane, weak plane, bit) for every bit, most significant first: the
+  // first (bits − 8) bits of an axis shift into its high planes, the last 8 into its low.
+  template <typename Function>
+  void ForEachBit(Function&& function) {
+    for (int axis : {kAxisX, kAxisY}) {
+      const std::vector<BitFrames>& bits = plan_.axes[axis].bits_msb_first;
+      const size_t high_bits = bits.size() > 8 ? bits.size() - 8 : 0;
+      for (size_t k = 0; k < bits.size(); ++k) {
+        const int plane = k < high_bits ? kHigh : kLow;
+        function(workspace_->code[axis][plane], workspace_->weak[axis][plane], bits[k]);
+      }
+    }
+  }
+
+  void ComputeContrast(size_t begin, int n) {
+    ComputeWhiteBlack(Frame(plan_.white, begin), Frame(plan_.black, begin), n, workspace_->contrast,
+                      workspace_->white_plus_black);
+  }
+
+  void EstimateDirectGlobal(size_t begin, int n) {
+    Workspace<Pixel>& ws = *workspace_;
+    std::fill_n(ws.level_max, n, Pixel{0});
+    std::fill_n(ws.level_min, n, std::numeric_limits<Pixel>::max());
+    for (int index : plan_.direct_global_frames) {
+      AccumulateMinMax(Frame(index, begin), n, ws.level_max, ws.level_min);
+    }
+    ComputeRobustBounds(n, ws.level_max, ws.level_min, thresholds_, ws.direct_minus_slack,
+                        ws.global_plus_slack, ws.direct_dominates, ws.too_dark);
+  }
+
+  template <typename Margin>
+  void Finish(size_t begin, int n, const Margin* margin) {
+    Workspace<Pixel>& ws = *workspace_;
+    static const float kUncodedLut[1] = {0.0f};  // code words of an uncoded axis stay 0
+    const AxisPlan& plan_x = plan_.axes[kAxisX];
+    const AxisPlan& plan_y = plan_.axes[kAxisY];
+    const auto axis_finish = [&](const AxisPlan& axis) {
+      AxisFinish finish;
+      finish.lut = axis.coded ? axis.coordinate_of_code.data() : kUncodedLut;
+      finish.gray = axis.code == PatternCode::kGray;
+      // Block centres of neighbouring codes are one block apart (the last, partial block's
+      // centre is closer); a little slack for float rounding.
+      finish.max_neighbour_gap = static_cast<float>(1 << axis.lowest_bit) * 1.001f;
+      return finish;
+    };
+    FinishPixels(n, ws.code[kAxisX][kHigh], ws.code[kAxisX][kLow], ws.code[kAxisY][kHigh],
+                 ws.code[kAxisY][kLow], ws.weak[kAxisX][kHigh], ws.weak[kAxisX][kLow],
+                 ws.weak[kAxisY][kHigh], ws.weak[kAxisY][kLow], axis_finish(plan_x),
+                 axis_finish(plan_y), ws.contrast, margin, thresholds_.min_contrast,
+                 kSolidMarginFactor * std::max(thresholds_.min_bit_margin, 1), static_cast<float>(thresholds_.margin_scale),
+                 outputs_.proj[kAxisX] ? outputs_.proj[kAxisX] + begin : ws.discard,
+                 outputs_.proj[kAxisY] ? outputs_.proj[kAxisY] + begin : ws.discard,
+                 outputs_.mask + begin, outputs_.confidence + begin);
+  }
+
+  const DecodePlan& plan_;
+  const std::vector<const Pixel*>& frames_;
+  const Thresholds thresholds_;
+  const Outputs outputs_;
+  std::unique_ptr<Workspace<Pixel>> workspace_;
+};
+
+template <typename Pixel>
+void DecodeAllPixels(const DecodePlan& plan, const std::vector<cv::Mat>& images,
+                     const Thresholds& thresholds, const Outputs& outputs, int num_threads) {
+  std::vector<const Pixel*> frames;
+  frames.reserve(images.size());
+  for (const cv::Mat& image : images) frames.push_back(image.ptr<Pixel>());
+  const size_t total = images.front().total();
+  const size_t num_chunks = (total + kChunkPixels - 1) / kChunkPixels;
+  const size_t num_workers =
+      std::max<size_t>(1, std::min(static_cast<size_t>(num_threads), num_chunks));
+  // Workspaces are allocated here so that no worker can fail.
+  std::vector<ChunkDecoder<Pixel>> decoders;
+  decoders.reserve(num_workers);
+  for (size_t w = 0; w < num_workers; ++w) decoders.emplace_back(plan, frames, thresholds, outputs);
+  // Contiguous chunk ranges per worker: each streams its own part of every frame.
+  auto run = [&](size_t worker) {
+    const size_t first = num_chunks * worker / num_workers;
+    const size_t last = num_chunks * (worker + 1) / num_workers;
+    for (size_t chunk = first; chunk < last; ++chunk) {
+      const size_t begin = chunk * kChunkPixels;
+      decoders[worker].Decode(begin,
+                              static_cast<int>(std::min<size_t>(kChunkPixels, total - begin)));
+    }
+  };
+  std::vector<std::thread> threads;
+  size_t started = 1;
+  try {
+    for (; started < num_workers; ++started) threads.emplace_back(run, started);
+  } catch (const std::system_error&) {
+    // No more threads: the caller decodes the remaining shares itself.
+  }
+  for (size_t worker = started; worker < num_workers; ++worker) run(worker);
+  run(0);
+  for (std::thread& thread : threads) thread.join();
+}
+
+Thresholds MakeThresholds(const DecodePlan& plan, const DecoderOptions& options,
+                          double levels_per_grey_level) {
+  Thresholds thresholds;
+  thresholds.min_contrast =
+      static_cast<int>(std::ceil(options.min_contrast * levels_per_grey_level));
+  thresholds.margin_scale = MarginScale(plan);
+  thresholds.min_bit_margin = static_cast<int>(
+      std::ceil(options.min_bit_contrast * levels_per_grey_level * thresholds.margin_scale));
+  thresholds.relative_bit_margin =
+      static_cast<float>(options.min_relative_bit_contrast * thresholds.margin_scale);
+  thresholds.min_direct = static_cast<float>(options.min_bit_contrast * levels_per_grey_level);
+  thresholds.robust_margin = static_cast<float>(options.robust_margin);
+  thresholds.black_level = static_cast<float>(options.robust_black_level);
+  return thresholds;
+}
+
+// Makes `image` a continuous image of this size and type that nobody else references,
+// reusing its memory when it already is one.
+void PrepareOutput(cv::Size size, int type, cv::Mat* image) {
+  const bool shared = image->u != nullptr && image->u->refcount > 1;
+  if (shared || !image->isContinuous() || image->isSubmatrix()) image->release();
+  image->create(size, type);
+}
+
+// Files of a correspondence-map directory.
+constexpr const char* kMapFormat = "sope-correspondence/1";
+constexpr const char* kMapJson = "correspondence.json";
+constexpr const char* kMaskFile = "mask.png";
+constexpr const char* kConfidenceFile = "confidence.exr";
+constexpr const char* kConfidencePng = "confidence.png";
+// Hue range of ColorizeCoordinate, degrees: red (0) … magenta (300), so that both ends
+// of the projector stay distinguishable (a full circle would wrap red to red).
+constexpr float kMaxHueDeg = 300.0f;
+
+std::string AxisFile(PatternAxis axis, const char* extension) {
+  return fmt::format("proj_{}.{}", ToString(axis), extension);
+}
+
+void CheckMap(const CorrespondenceMap& map) {
+  SOPE_CHECK(map.projector_width > 0 && map.projector_height > 0,
+             "correspondence map: invalid projector size {}x{}", map.projector_width,
+             map.projector_height);
+  SOPE_CHECK(!map.mask.empty() && map.mask.type() == CV_8UC1,
+             "correspondence map: the mask must be a non-empty CV_8UC1 image");
+  SOPE_CHECK(map.HasX() || map.HasY(), "correspondence map: no coded axis");
+  const cv::Size size = map.mask.size();
+  for (const cv::Mat* image : {&map.proj_x, &map.proj_y, &map.confidence}) {
+    if (image == &map.confidence || !image->empty()) {
+      SOPE_CHECK(image->type() == CV_32FC1 && image->size() == size,
+                 "correspondence map: coordinate and confidence images must be CV_32FC1 of "
+                 "the mask size {}x{}",
+                 size.width, size.height);
+    }
+  }
+  SOPE_CHECK(map.step_x > 0.0f && map.step_y > 0.0f, "correspondence map: invalid steps {} {}",
+             map.step_x, map.step_y);
+}
+
+cv::Mat ColorizeConfidence(const cv::Mat& confidence, const cv::Mat& mask) {
+  cv::Mat levels;
+  confidence.convertTo(levels, CV_8U, 255.0);
+  cv::Mat colour;
+  cv::applyColorMap(levels, colour, cv::COLORMAP_VIRIDIS);
+  colour.setTo(cv::Scalar::all(0), mask == 0);
+  return colour;
+}
+
+}  // namespace
+
+std::vector<float> MakeCoordinateLut(PatternCode code, int bits, int lowest_bit,
+                                     int projector_size) {
+  SOPE_CHECK(bits >= 1 && bits <= 16 && lowest_bit >= 0 && lowest_bit < bits && projector_size > 0,
+             "invalid code layout: bits {}, lowest bit {}, projector size {}", bits, lowest_bit,
+             projector_size);
+  const uint32_t num_codes = 1u << (bits - lowest_bit);
+  const uint32_t block_size = 1u << lowest_bit;
+  const uint32_t size = static_cast<uint32_t>(projector_size);
+  std::vector<float> lut(num_codes);
+  for (uint32_t word = 0; word < num_codes; ++word) {
+    // The top bits of a Gray code decode to the top bits of the binary value.
+    const uint32_t block = code == PatternCode::kGray ? BinaryFromGray(word) : word;
+    const uint32_t start = block * block_size;
+    if (start >= size) {
+      lut[word] = kNaN;
+      continue;
+    }
+    const uint32_t end = std::min(start + block_size, size);
+    lut[word] = 0.5f * static_cast<float>(start + end - 1);
+  }
+  return lut;
+}
+
+DecodePlan MakeDecodePlan(const FrameSetManifest& manifest, const DecoderOptions& options) {
+  DecodePlan plan;
+  plan.mode = options.bit_decision;
+  const auto index_or_none = [](std::optional<size_t> index) {
+    return index ? static_cast<int>(*index) : -1;
+  };
+  plan.white = index_or_none(manifest.Find(FrameRole::kWhite));
+  plan.black = index_or_none(manifest.Find(FrameRole::kBlack));
+  const bool has_white_black = plan.white >= 0 && plan.black >= 0;
+  SOPE_CHECK(plan.mode != BitDecision::kThreshold || has_white_black,
+             "threshold decoding needs a white and a black frame; the set has {}",
+             plan.white < 0 && plan.black < 0 ? "neither"
+             : plan.white < 0                 ? "no white"
+                                              : "no black");
+  for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+    if (!manifest.HasAxis(axis)) continue;
+    AxisPlan& axis_plan = plan.axes[static_cast<int>(axis)];
+    axis_plan.coded = true;
+    axis_plan.projector_size =
+        axis == PatternAxis::kX ? manifest.projector_width : manifest.projector_height;
+    axis_plan.lowest_bit = manifest.AxisLowestBit(axis);
+    axis_plan.code = manifest.AxisCode(axis);
+    const int bits = manifest.AxisBits(axis);
+    for (int bit = bits - 1; bit >= axis_plan.lowest_bit; --bit) {
+      const std::optional<size_t> pattern = manifest.FindCode(axis, bit, false);
+      const std::optional<size_t> inverse = manifest.FindCode(axis, bit, true);
+      SOPE_CHECK(pattern.has_value(), "axis {} bit {}: no pattern frame", ToString(axis), bit);
+      BitFrames frames;
+      frames.pattern = static_cast<int>(*pattern);
+      if (inverse && plan.mode != BitDecision::kThreshold)
+        frames.inverse = static_cast<int>(*inverse);
+      if (plan.mode == BitDecision::kRobust) {
+        SOPE_CHECK(frames.inverse >= 0,
+                   "robust decoding needs the inverse of every code frame "
+                   "(direct/global separation); axis {} bit {} has none",
+                   ToString(axis), bit);
+      }
+      if (frames.inverse < 0) {
+        SOPE_CHECK(has_white_black,
+                   "axis {} bit {} has no inverse frame and the set has no "
+                   "white and black frames for a threshold",
+                   ToString(axis), bit);
+        plan.any_threshold_bit = true;
+      }
+      axis_plan.bits_msb_first.push_back(frames);
+    }
+    axis_plan.coordinate_of_code = MakeCoordinateLut(
+        manifest.AxisCode(axis), bits, axis_plan.lowest_bit, axis_plan.projector_size);
+    if (plan.mode == BitDecision::kRobust) {
+      const std::vector<BitFrames>& present = axis_plan.bits_msb_first;
+      const size_t count = std::min<size_t>(kDirectGlobalBitsPerAxis, present.size());
+      for (size_t k = present.size() - count; k < present.size(); ++k) {
+        plan.direct_global_frames.push_back(present[k].pattern);
+        plan.direct_global_frames.push_back(present[k].inverse);
+      }
+    }
+  }
+  return plan;
+}
+
+}  // namespace internal
+
+std::string ToString(BitDecision mode) {
+  switch (mode) {
+    case BitDecision::kAuto: return "auto";
+    case BitDecision::kThreshold: return "threshold";
+    case BitDecision::kRobust: return "robust";
+  }
+  return "?";
+}
+
+BitDecision BitDecisionFromString(const std::string& text) {
+  if (text == "auto") return BitDecision::kAuto;
+  if (text == "threshold") return BitDecision::kThreshold;
+  if (text == "robust") return BitDecision::kRobust;
+  SOPE_THROW("unknown bit decision '{}' (expected auto, threshold or robust)", text);
+}
+
+void DecoderOptions::Check() const {
+  SOPE_CHECK(std::isfinite(min_contrast) && min_contrast >= 0.0 && min_contrast <= 255.0,
+             "min_contrast {} must be in [0, 255] grey levels", min_contrast);
+  SOPE_CHECK(
+      std::isfinite(min_bit_contrast) && min_bit_contrast >= 0.0 && min_bit_contrast <= 255.0,
+      "min_bit_contrast {} must be in [0, 255] grey levels", min_bit_contrast);
+  SOPE_CHECK(std::isfinite(min_relative_bit_contrast) && min_relative_bit_contrast >= 0.0 &&
+                 min_relative_bit_contrast < 1.0,
+             "min_relative_bit_contrast {} must be in [0, 1)", min_relative_bit_contrast);
+  SOPE_CHECK(std::isfinite(robust_margin) && robust_margin >= 0.0 && robust_margin <= 10.0,
+             "robust_margin {} must be in [0, 10]", robust_margin);
+  SOPE_CHECK(
+      std::isfinite(robust_black_level) && robust_black_level >= 0.0 && robust_black_level < 1.0,
+      "robust_black_level {} must be in [0, 1)", robust_black_level);
+  SOPE_CHECK(num_threads >= 1 && num_threads <= 1024, "num_threads {} must be in 1..1024",
+             num_threads);
+  SOPE_CHECK(bit_decision == BitDecision::kAuto || bit_decision == BitDecision::kThreshold ||
+                 bit_decision == BitDecision::kRobust,
+             "invalid bit_decision {}", static_cast<int>(bit_decision));
+}
+
+size_t CorrespondenceMap::CountValid() const {
+  return mask.empty() ? 0 : static_cast<size_t>(cv::countNonZero(mask));
+}
+
+CorrespondenceMap Decode(const FrameSet& frame_set, const DecoderOptions& options) {
+  CorrespondenceMap map;
+  Decode(frame_set, options, &map);
+  return map;
+}
+
+void Decode(const FrameSet& frame_set, const DecoderOptions& options, CorrespondenceMap* map) {
+  SOPE_CHECK(map != nullptr, "Decode: no output map");
+  options.Check();
+  frame_set.Check();
+  const FrameSetManifest& manifest = frame_set.manifest;
+  const internal::DecodePlan plan = internal::MakeDecodePlan(manifest, options);
+
+  // The kernels walk every image as one flat array.
+  std::vector<cv::Mat> images;
+  images.reserve(frame_set.images.size());
+  for (const cv::Mat& image : frame_set.images) {
+    images.push_back(image.isContinuous() ? image : image.clone());
+  }
+
+  map->projector_width = manifest.projector_width;
+  map->projector_height = manifest.projector_height;
+  map->step_x = map->step_y = 1.0f;
+  const cv::Size size(manifest.camera_width, manifest.camera_height);
+  internal::Outputs outputs;
+  for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+    const internal::AxisPlan& axis_plan = plan.axes[static_cast<int>(axis)];
+    cv::Mat& coordinate = axis == PatternAxis::kX ? map->proj_x : map->proj_y;
+    if (!axis_plan.coded) {
+      coordinate.release();
+      continue;
+    }
+    internal::PrepareOutput(size, CV_32FC1, &coordinate);
+    outputs.proj[static_cast<int>(axis)] = coordinate.ptr<float>();
+    (axis == PatternAxis::kX ? map->step_x : map->step_y) =
+        static_cast<float>(1 << axis_plan.lowest_bit);
+  }
+  internal::PrepareOutput(size, CV_8UC1, &map->mask);
+  internal::PrepareOutput(size, CV_32FC1, &map->confidence);
+  outputs.mask = map->mask.ptr<uint8_t>();
+  outputs.confidence = map->confidence.ptr<float>();
+
+  if (images.front().depth() == CV_8U) {
+    internal::DecodeAllPixels<uint8_t>(
+        plan, images,
+        internal::MakeThresholds(plan, options,
+                                 internal::PixelTraits<uint8_t>::kLevelsPerGreyLevel),
+        outputs, options.num_threads);
+  } else {
+    internal::DecodeAllPixels<uint16_t>(
+        plan, images,
+        internal::MakeThresholds(plan, options,
+                                 internal::PixelTraits<uint16_t>::kLevelsPerGreyLevel),
+        outputs, options.num_threads);
+  }
+}
+
+cv::Mat ColorizeCoordinate(const cv::Mat& coordinate, int projector_size) {
+  SOPE_CHECK(coordinate.type() == CV_32FC1, "ColorizeCoordinate: expected a CV_32FC1 image");
+  SOPE_CHECK(projector_size > 0, "ColorizeCoordinate: invalid projector size {}", projector_size);
+  const float hue_per_pixel =
+      internal::kMaxHueDeg / static_cast<float>(std::max(projector_size - 1, 1));
+  cv::Mat hsv(coordinate.size(), CV_32FC3);
+  for (int y = 0; y < coordinate.rows; ++y) {
+    const float* in = coordinate.ptr<float>(y);
+    cv::Vec3f* out = hsv.ptr<cv::Vec3f>(y);
+    for (int x = 0; x < coordinate.cols; ++x) {
+      const bool valid = std::isfinite(in[x]);
+      const float hue =
+          valid ? std::clamp(in[x] * hue_per_pixel, 0.0f, internal::kMaxHueDeg) : 0.0f;
+      out[x] = cv::Vec3f(hue, 1.0f, valid ? 1.0f : 0.0f);
+    }
+  }
+  cv::Mat bgr;
+  cv::cvtColor(hsv, bgr, cv::COLOR_HSV2BGR);
+  cv::Mat colour;
+  bgr.convertTo(colour, CV_8UC3, 255.0);
+  return colour;
+}
+
+void WriteCorrespondenceMap(const std::string& directory, const CorrespondenceMap& map) {
+  internal::CheckMap(map);
+  nlohmann::json root;
+  root["format"] = internal::kMapFormat;
+  root["camera"] = {{"width", map.width()}, {"height", map.height()}};
+  root["projector"] = {{"width", map.projector_width}, {"height", map.projector_height}};
+  nlohmann::json axes = nlohmann::json::object();
+  for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+    const bool is_x = axis == PatternAxis::kX;
+    const cv::Mat& coordinate = is_x ? map.proj_x : map.proj_y;
+    if (coordinate.empty()) continue;
+    WriteImageAtomic(JoinPath(directory, internal::AxisFile(axis, "exr")), coordinate);
+    WriteImageAtomic(
+        JoinPath(directory, internal::AxisFile(axis, "png")),
+        ColorizeCoordinate(coordinate, is_x ? map.projector_width : map.projector_height));
+    axes[ToString(axis)] = {{"file", internal::AxisFile(axis, "exr")},
+                            {"step", is_x ? map.step_x : map.step_y}};
+  }
+  root["axes"] = axes;
+  root["mask"] = internal::kMaskFile;
+  root["confidence"] = internal::kConfidenceFile;
+  WriteImageAtomic(JoinPath(directory, internal::kMaskFile), map.mask);
+  WriteImageAtomic(JoinPath(directory, internal::kConfidenceFile), map.confidence);
+  WriteImageAtomic(JoinPath(directory, internal::kConfidencePng),
+                   internal::ColorizeConfidence(map.confidence, map.mask));
+  // Last, so that a complete correspondence.json implies complete images.
+  WriteFileAtomic(JoinPath(directory, internal::kMapJson), root.dump(2) + "\n");
+}
+
+CorrespondenceMap ReadCorrespondenceMap(const std::string& directory) {
+  const std::string json_path = JoinPath(directory, internal::kMapJson);
+  const std::string text = ReadFileToString(json_path, "correspondence map");
+  nlohmann::json root;
+  try {
+    root = nlohmann::json::parse(text);
+  } catch (const nlohmann::json::parse_error& e) {
+    SOPE_THROW("{}: not valid JSON ({})", json_path, e.what());
+  }
+  CorrespondenceMap map;
+  int camera_width = 0, camera_height = 0;
+  try {
+    const std::string format = root.at("format").get<std::string>();
+    SOPE_CHECK(format == internal::kMapFormat, "{}: unsupported format '{}' (expected '{}')",
+               json_path, format, internal::kMapFormat);
+    camera_width = root.at("camera").at("width").get<int>();
+    camera_height = root.at("camera").at("height").get<int>();
+    map.projector_width = root.at("projector").at("width").get<int>();
+    map.projector_height = root.at("projector").at("height").get<int>();
+    const nlohmann::json& axes = root.at("axes");
+    for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+      if (!axes.contains(ToString(axis))) continue;
+      const nlohmann::json& entry = axes.at(ToString(axis));
+      const std::string file = entry.at("file").get<std::string>();
+      SOPE_CHECK(file.find('/') == std::string::npos, "{}: file '{}' must be a plain name",
+                 json_path, file);
+      const cv::Mat image = ReadImage(JoinPath(directory, file));
+      const float step = entry.at("step").get<float>();
+      if (axis == PatternAxis::kX) {
+        map.proj_x = image;
+        map.step_x = step;
+      } else {
+        map.proj_y = image;
+        map.step_y = step;
+      }
+    }
+    map.mask = ReadImage(JoinPath(directory, root.at("mask").get<std::string>()));
+    map.confidence = ReadImage(JoinPath(directory, root.at("confidence").get<std::string>()));
+  } catch (const nlohmann::json::exception& e) {
+    SOPE_THROW("{}: missing or mistyped field ({})", json_path, e.what());
+  }
+  try {
+    internal::CheckMap(map);
+  } catch (const Error& e) {
+    SOPE_THROW("{}: {}", directory, e.what());
+  }
+  SOPE_CHECK(map.width() == camera_width && map.height() == camera_height,
+             "{}: images are {}x{} but correspondence.json says {}x{}", directory, map.width(),
+             map.height(), camera_width, camera_height);
+  return map;
+}
+
+}  // namespace sope

@@ -27,15 +27,31 @@ BitDecision BitDecisionFromString(const std::string& text);
 
 struct DecoderOptions {
   // Minimum white − black contrast, grey levels on an 8-bit scale (16-bit images are
-  // scaled by 1/257); darker pixels are shadow or off the projector.
+  // scaled by 1/257); darker pixels are shadow or off the projector. A pixel needs
+  // white − black ≥ min_contrast (without white/black frames: the largest
+  // |pattern − inverse| over the bits).
   double min_contrast = 10.0;
   // Minimum |pattern − inverse| (or |pattern − threshold| without inverses) for a bit to
-  // count as decided, 8-bit grey levels. A pixel with any undecided bit is invalid.
+  // count as decided (|d| ≥ min_bit_contrast), 8-bit grey levels. kRobust also uses it as
+  // the minimum direct light.
   double min_bit_contrast = 3.0;
+  // A bit also needs |pattern − inverse| ≥ min_relative_bit_contrast · (white − black)
+  // (|pattern − threshold| ≥ half that), when the set has white and black frames: a pixel
+  // that straddles a stripe edge sees both sides mixed, and noise must not decide it.
+  // 0 (default) keeps OpenCV's absolute rule. With sharp optics 0.15–0.25 resolves more
+  // edge pixels to their boundary (on the virtual rig: median depth error −35%); where the
+  // finest stripes are blurred (real JPEG captures) it coarsens the finest bit instead.
+  // Undecided bits are never guessed: a Gray-code pixel whose single undecided bit is the
+  // one that changes between two neighbouring columns (rows) sits on their boundary and
+  // decodes to it (c + ½ step); any other undecided bit invalidates the pixel.
+  double min_relative_bit_contrast = 0.0;
   BitDecision bit_decision = BitDecision::kAuto;
   // kRobust only: fraction of the global component allowed to flip a decision (ε in
   // Xu & Aliaga); larger leaves more pixels undecided.
   double robust_margin = 0.1;
+  // kRobust only: projector black level b in [0, 1), the fraction of a white pixel's light
+  // a black projector pixel still emits (Moreno & Taubin's b in the direct/global split).
+  double robust_black_level = 0.0;
   // Threads for the decode loop; 1 = single-threaded.
   int num_threads = 1;
 
@@ -53,8 +69,10 @@ struct CorrespondenceMap {
   cv::Mat proj_y;
   // CV_8UC1: 255 where every coded axis decoded.
   cv::Mat mask;
-  // CV_32FC1 in [0, 1]: the weakest bit's margin relative to the white−black contrast;
-  // 0 where invalid.
+  // CV_32FC1 in [0, 1]: the weakest bit's margin (|pattern − inverse|, or
+  // |pattern − threshold| for bits decided without an inverse, which therefore reach at
+  // most 0.5) relative to the white − black contrast (or, without white/black frames, to
+  // the largest |pattern − inverse|); 0 where invalid.
   cv::Mat confidence;
   // Quantum of the decoded coordinates, projector pixels (2^omitted low bits).
   float step_x = 1.0f;
@@ -69,8 +87,18 @@ struct CorrespondenceMap {
 };
 
 // Decodes a checked frame set. Throws sope::Error on invalid options or an inconsistent
-// set (e.g. no inverses and no white/black for the threshold).
+// set (e.g. no inverses and no white/black for the threshold; kThreshold without
+// white/black; kRobust without inverses).
+//
+// One pass over the frames: pixels are decoded in chunks, each chunk reading its part of
+// every frame once (byte-wide, vectorised per-bit loops; Gray → binary and the block
+// centre through a table); it costs a small multiple of reading the frames once
+// (bench/decode_bench). num_threads > 1 splits the chunks; results are identical.
 CorrespondenceMap Decode(const FrameSet& frame_set, const DecoderOptions& options = {});
+// The same, into `map`: its images are reused when they already have the right size and
+// type and are not shared with another cv::Mat, else reallocated. Scanning repeatedly into
+// one map thus avoids allocating (and page-faulting in) ~13 bytes per camera pixel per scan.
+void Decode(const FrameSet& frame_set, const DecoderOptions& options, CorrespondenceMap* map);
 
 // Writes proj_x.exr / proj_y.exr (float, NaN invalid), mask.png, confidence.exr,
 // correspondence.json (projector size, steps), and the colourised views proj_x.png /
@@ -80,6 +108,8 @@ void WriteCorrespondenceMap(const std::string& directory, const CorrespondenceMa
 // Reads what WriteCorrespondenceMap wrote; throws sope::Error on missing/mismatched files.
 CorrespondenceMap ReadCorrespondenceMap(const std::string& directory);
 // A colour picture of one axis (BGR, CV_8UC3): coordinate as hue, invalid pixels black.
+// Hue runs from red (0) through green and blue to magenta (projector_size − 1), so both
+// ends stay distinguishable.
 cv::Mat ColorizeCoordinate(const cv::Mat& coordinate, int projector_size);
 
 }  // namespace sope

@@ -1,2 +1,334 @@
-// Placeholder until the pattern tests land.
+#include "projector/patterns.h"
+
+#include <bitset>
+#include <cstdint>
+#include <random>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <fmt/format.h>
 #include <gtest/gtest.h>
+#include <opencv2/core.hpp>
+#include <opencv2/structured_light.hpp>
+
+#include "core/error.h"
+
+namespace sope {
+namespace {
+
+TEST(GrayCode, BinaryFromGrayInvertsGrayFromBinary) {
+  for (uint32_t value = 0; value < (1u << 17); ++value) {
+    ASSERT_EQ(BinaryFromGray(GrayFromBinary(value)), value);
+    ASSERT_EQ(GrayFromBinary(BinaryFromGray(value)), value);
+  }
+  std::mt19937 random(7);
+  for (int i = 0; i < 100000; ++i) {
+    const uint32_t value = random();
+    ASSERT_EQ(BinaryFromGray(GrayFromBinary(value)), value) << value;
+  }
+}
+
+TEST(GrayCode, NeighboursDifferInExactlyOneBit) {
+  for (uint32_t value = 0; value + 1 < (1u << 16); ++value) {
+    const uint32_t changed = GrayFromBinary(value) ^ GrayFromBinary(value + 1);
+    ASSERT_EQ(std::bitset<32>(changed).count(), 1u) << value;
+  }
+}
+
+TEST(GrayCode, PatternBitIsTheBitOfTheCodeWord) {
+  EXPECT_EQ(GrayFromBinary(0b1011), 0b1110u);
+  for (uint32_t coordinate = 0; coordinate < 2048; ++coordinate) {
+    for (int bit = 0; bit < 11; ++bit) {
+      ASSERT_EQ(PatternBit(PatternCode::kBinary, coordinate, bit), ((coordinate >> bit) & 1) == 1);
+      ASSERT_EQ(PatternBit(PatternCode::kGray, coordinate, bit),
+                (((coordinate ^ (coordinate >> 1)) >> bit) & 1) == 1);
+    }
+  }
+}
+
+TEST(BitsForSize, IsTheCeilingOfLog2) {
+  EXPECT_EQ(BitsForSize(1), 1);  // a single column still needs one frame
+  EXPECT_EQ(BitsForSize(2), 1);
+  EXPECT_EQ(BitsForSize(3), 2);
+  EXPECT_EQ(BitsForSize(700), 10);
+  EXPECT_EQ(BitsForSize(800), 10);
+  EXPECT_EQ(BitsForSize(1000), 10);
+  EXPECT_EQ(BitsForSize(1024), 10);
+  EXPECT_EQ(BitsForSize(1025), 11);
+  EXPECT_EQ(BitsForSize(1280), 11);
+}
+
+TEST(PatternAxes, StringsRoundTrip) {
+  for (PatternAxes axes : {PatternAxes::kX, PatternAxes::kY, PatternAxes::kXY}) {
+    EXPECT_EQ(PatternAxesFromString(ToString(axes)), axes);
+  }
+  EXPECT_THROW(PatternAxesFromString("z"), Error);
+}
+
+TEST(PatternOptions, CheckNamesTheInvalidValue) {
+  EXPECT_NO_THROW(PatternOptions().Check());
+  PatternOptions options;
+  options.projector_width = 0;
+  EXPECT_THROW(options.Check(), Error);
+  options = PatternOptions();
+  options.skip_low_bits = BitsForSize(options.projector_height);  // nothing left on y
+  EXPECT_THROW(options.Check(), Error);
+  options = PatternOptions();
+  options.inverted = false;
+  options.white_black = false;
+  EXPECT_THROW(options.Check(), Error);
+}
+
+// The frames GeneratePatterns must produce, in display order.
+std::vector<FrameInfo> ExpectedFrames(const PatternOptions& options) {
+  std::vector<FrameInfo> frames;
+  if (options.white_black) {
+    frames.push_back({"", FrameRole::kWhite});
+    frames.push_back({"", FrameRole::kBlack});
+  }
+  for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+    if ((axis == PatternAxis::kX && options.axes == PatternAxes::kY) ||
+        (axis == PatternAxis::kY && options.axes == PatternAxes::kX)) {
+      continue;
+    }
+    const int bits =
+        BitsForSize(axis == PatternAxis::kX ? options.projector_width : options.projector_height);
+    for (int bit = bits - 1; bit >= options.skip_low_bits; --bit) {
+      for (bool inverted : {false, true}) {
+        if (!inverted || options.inverted) {
+          frames.push_back({"", FrameRole::kCode, axis, options.code, bits, bit, inverted});
+        }
+      }
+    }
+  }
+  return frames;
+}
+
+// Every pixel of a code frame shows PatternBit of its column (x) or row (y), negated for
+// inverses; white and black are uniform.
+void ExpectImageShowsItsBit(const Pattern& pattern, int width, int height) {
+  const cv::Mat& image = pattern.image;
+  ASSERT_EQ(image.type(), CV_8UC1);
+  ASSERT_EQ(image.cols, width);
+  ASSERT_EQ(image.rows, height);
+  const FrameInfo& info = pattern.info;
+  size_t wrong = 0;
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      bool lit = info.role == FrameRole::kWhite;
+      if (info.role == FrameRole::kCode) {
+        const uint32_t coordinate = static_cast<uint32_t>(info.axis == PatternAxis::kX ? x : y);
+        lit = PatternBit(info.code, coordinate, info.bit) != info.inverted;
+      }
+      wrong += image.at<uint8_t>(y, x) != (lit ? 255 : 0);
+    }
+  }
+  EXPECT_EQ(wrong, 0u) << info.file;
+}
+
+struct SequenceCase {
+  int width;
+  int height;
+  PatternAxes axes;
+  PatternCode code;
+  bool inverted;
+  bool white_black;
+  int skip_low_bits;
+};
+
+class PatternSequence : public ::testing::TestWithParam<SequenceCase> {};
+
+TEST_P(PatternSequence, CountsOrderImagesAndManifestAgree) {
+  const SequenceCase& c = GetParam();
+  PatternOptions options;
+  options.projector_width = c.width;
+  options.projector_height = c.height;
+  options.axes = c.axes;
+  options.code = c.code;
+  options.inverted = c.inverted;
+  options.white_black = c.white_black;
+  options.skip_low_bits = c.skip_low_bits;
+  const std::vector<Pattern> patterns = GeneratePatterns(options);
+  const std::vector<FrameInfo> expected = ExpectedFrames(options);
+  ASSERT_EQ(patterns.size(), expected.size());
+  std::set<std::string> files;
+  for (size_t i = 0; i < patterns.size(); ++i) {
+    const FrameInfo& info = patterns[i].info;
+    SCOPED_TRACE(fmt::format("frame {} ({})", i, info.file));
+    EXPECT_EQ(info.role, expected[i].role);
+    if (info.role == FrameRole::kCode) {
+      EXPECT_EQ(info.axis, expected[i].axis);
+      EXPECT_EQ(info.code, expected[i].code);
+      EXPECT_EQ(info.bits, expected[i].bits);
+      EXPECT_EQ(info.bit, expected[i].bit);
+      EXPECT_EQ(info.inverted, expected[i].inverted);
+    }
+    EXPECT_TRUE(files.insert(info.file).second) << "duplicate file name";
+    ExpectImageShowsItsBit(patterns[i], c.width, c.height);
+  }
+  // The manifest describes the same sequence and passes its own checks.
+  const FrameSetManifest manifest = MakePatternManifest(options, 640, 480);
+  ASSERT_EQ(manifest.frames.size(), patterns.size());
+  for (size_t i = 0; i < patterns.size(); ++i) {
+    EXPECT_EQ(manifest.frames[i].file, patterns[i].info.file);
+    EXPECT_EQ(manifest.frames[i].role, patterns[i].info.role);
+    EXPECT_EQ(manifest.frames[i].bit, patterns[i].info.bit);
+  }
+  EXPECT_NO_THROW(manifest.Check());
+  for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+    if (manifest.HasAxis(axis)) {
+      EXPECT_EQ(manifest.AxisLowestBit(axis), c.skip_low_bits);
+    }
+  }
+}
+
+// Decoding the projector's own images (camera = projector) returns every coordinate:
+// the bits, read most significant first from the frames, Gray → binary, give x (or y).
+TEST_P(PatternSequence, FramesDecodeToEveryProjectorCoordinate) {
+  const SequenceCase& c = GetParam();
+  PatternOptions options;
+  options.projector_width = c.width;
+  options.projector_height = c.height;
+  options.axes = c.axes;
+  options.code = c.code;
+  options.inverted = c.inverted;
+  options.white_black = c.white_black;
+  options.skip_low_bits = c.skip_low_bits;
+  const std::vector<Pattern> patterns = GeneratePatterns(options);
+  for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+    const int size = axis == PatternAxis::kX ? c.width : c.height;
+    std::vector<uint32_t> word(size, 0);
+    bool coded = false;
+    for (const Pattern& pattern : patterns) {  // most significant bit first
+      if (pattern.info.role != FrameRole::kCode || pattern.info.axis != axis ||
+          pattern.info.inverted) {
+        continue;
+      }
+      coded = true;
+      for (int i = 0; i < size; ++i) {
+        const uint8_t level = axis == PatternAxis::kX ? pattern.image.at<uint8_t>(0, i)
+                                                      : pattern.image.at<uint8_t>(i, 0);
+        word[i] = (word[i] << 1) | (level == 255 ? 1u : 0u);
+      }
+    }
+    if (!coded) continue;
+    for (int i = 0; i < size; ++i) {
+      const uint32_t block = c.code == PatternCode::kGray ? BinaryFromGray(word[i]) : word[i];
+      ASSERT_EQ(block, static_cast<uint32_t>(i) >> c.skip_low_bits) << ToString(axis) << " " << i;
+    }
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Layouts, PatternSequence,
+    ::testing::Values(SequenceCase{1000, 700, PatternAxes::kXY, PatternCode::kGray, true, true, 0},
+                      SequenceCase{1280, 800, PatternAxes::kXY, PatternCode::kGray, true, true, 0},
+                      SequenceCase{1280, 800, PatternAxes::kX, PatternCode::kBinary, false, true,
+                                   0},
+                      SequenceCase{300, 200, PatternAxes::kY, PatternCode::kGray, true, false, 0},
+                      SequenceCase{300, 200, PatternAxes::kXY, PatternCode::kGray, true, true, 3},
+                      SequenceCase{1, 1, PatternAxes::kXY, PatternCode::kGray, true, true, 0},
+                      SequenceCase{17, 9, PatternAxes::kXY, PatternCode::kBinary, true, true, 1}));
+
+// ---------------------------------------------------------------------------------------
+// OpenCV's cv::structured_light::GrayCodePattern. generate() returns only the pattern
+// images: for each column bit from the most significant, the pattern then its inverse,
+// then the row bits likewise (2·(⌈log2 width⌉ + ⌈log2 height⌉) images, CV_8UC1, white =
+// bit 1 of the Gray code). The white and black references come separately from
+// getImagesForShadowMasks(blackImage, whiteImage) — black first in the argument list —
+// and OpenCV's capture sample projects them after the patterns: white, then black.
+// MakeOpenCvGrayCodeManifest describes exactly that capture order.
+// ---------------------------------------------------------------------------------------
+class OpenCvGrayCode : public ::testing::TestWithParam<cv::Size> {};
+
+TEST_P(OpenCvGrayCode, ManifestMatchesGenerateImageForImage) {
+  const cv::Size projector = GetParam();
+  cv::structured_light::GrayCodePattern::Params params;
+  params.width = projector.width;
+  params.height = projector.height;
+  const cv::Ptr<cv::structured_light::GrayCodePattern> opencv =
+      cv::structured_light::GrayCodePattern::create(params);
+  std::vector<cv::Mat> generated;
+  ASSERT_TRUE(opencv->generate(generated));
+  cv::Mat black, white;
+  opencv->getImagesForShadowMasks(black, white);
+  const size_t num_patterns = opencv->getNumberOfPatternImages();
+  ASSERT_EQ(generated.size(), num_patterns);
+  const size_t expected_patterns =
+      2 * static_cast<size_t>(BitsForSize(projector.width) + BitsForSize(projector.height));
+  ASSERT_EQ(num_patterns, expected_patterns);
+
+  std::vector<std::string> files;
+  for (size_t i = 0; i < num_patterns + 2; ++i) files.push_back(fmt::format("im{}.png", i + 1));
+  const FrameSetManifest manifest =
+      MakeOpenCvGrayCodeManifest(projector.width, projector.height, 640, 480, files);
+  ASSERT_EQ(manifest.frames.size(), num_patterns + 2);
+  // OpenCV's captures in capture order: the patterns, white, black.
+  std::vector<cv::Mat> opencv_sequence = generated;
+  opencv_sequence.push_back(white);
+  opencv_sequence.push_back(black);
+  for (size_t i = 0; i < opencv_sequence.size(); ++i) {
+    const FrameInfo& frame = manifest.frames[i];
+    SCOPED_TRACE(fmt::format("image {} ({}, {} bit {}{})", i, ToString(frame.role),
+                             ToString(frame.axis), frame.bit, frame.inverted ? " inverted" : ""));
+    EXPECT_EQ(frame.file, files[i]);
+    cv::Mat theirs = opencv_sequence[i];
+    if (theirs.channels() == 3) cv::extractChannel(theirs, theirs, 0);
+    const cv::Mat ours = RenderPattern(frame, projector.width, projector.height);
+    ASSERT_EQ(theirs.size(), ours.size());
+    ASSERT_EQ(theirs.type(), CV_8UC1);
+    EXPECT_EQ(cv::norm(ours, theirs, cv::NORM_INF), 0.0);
+  }
+  EXPECT_EQ(manifest.frames[num_patterns].role, FrameRole::kWhite);
+  EXPECT_EQ(manifest.frames[num_patterns + 1].role, FrameRole::kBlack);
+  EXPECT_EQ(cv::countNonZero(white != 255), 0);
+  EXPECT_EQ(cv::countNonZero(black), 0);
+  // A list of the wrong length is refused.
+  files.pop_back();
+  EXPECT_THROW(MakeOpenCvGrayCodeManifest(projector.width, projector.height, 640, 480, files),
+               Error);
+}
+
+// OpenCV's own decoder reads our rendered frames back to every projector pixel, so the
+// polarity (bright = bit 1) and bit order agree with OpenCV's decoding as well.
+TEST_P(OpenCvGrayCode, GetProjPixelDecodesOurFrames) {
+  const cv::Size projector = GetParam();
+  // Every pixel of small projectors, every third column and row of large ones.
+  const int stride = projector.area() > 100000 ? 3 : 1;
+  cv::structured_light::GrayCodePattern::Params params;
+  params.width = projector.width;
+  params.height = projector.height;
+  const cv::Ptr<cv::structured_light::GrayCodePattern> opencv =
+      cv::structured_light::GrayCodePattern::create(params);
+  std::vector<std::string> files;
+  for (size_t i = 0; i < opencv->getNumberOfPatternImages() + 2; ++i) {
+    files.push_back(fmt::format("{}.png", i));
+  }
+  const FrameSetManifest manifest = MakeOpenCvGrayCodeManifest(
+      projector.width, projector.height, projector.width, projector.height, files);
+  std::vector<cv::Mat> images;
+  for (size_t i = 0; i < opencv->getNumberOfPatternImages(); ++i) {
+    images.push_back(RenderPattern(manifest.frames[i], projector.width, projector.height));
+  }
+  size_t wrong = 0;
+  for (int y = 0; y < projector.height; y += stride) {
+    for (int x = 0; x < projector.width; x += stride) {
+      cv::Point decoded;
+      const bool error = opencv->getProjPixel(images, x, y, decoded);
+      wrong += error || decoded != cv::Point(x, y);
+    }
+  }
+  EXPECT_EQ(wrong, 0u);
+}
+
+INSTANTIATE_TEST_SUITE_P(Sizes, OpenCvGrayCode,
+                         ::testing::Values(cv::Size(1280, 800), cv::Size(512, 384),
+                                           cv::Size(1000, 700), cv::Size(300, 200),
+                                           cv::Size(17, 9)),
+                         [](const ::testing::TestParamInfo<cv::Size>& info) {
+                           return fmt::format("{}x{}", info.param.width, info.param.height);
+                         });
+
+}  // namespace
+}  // namespace sope
