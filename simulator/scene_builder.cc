@@ -2,6 +2,7 @@
 
 #include "core/error.h"
 #include "simulator/primitives.h"
+#include "simulator/procedural_objects.h"
 
 namespace sope {
 
@@ -35,7 +36,24 @@ TriangleMesh LoadMeshSpec(const std::string& spec) {
   if (name == "cylinder") return MakeCylinder(0.05, 0.16, 96, true);
   if (name == "torus") return MakeTorus(0.07, 0.025, 96, 48);
   if (name == "plane") return MakePlane(0.3, 0.2, 8);
-  SOPE_THROW("unknown builtin mesh '{}' (known: sphere, box, cylinder, torus, plane)", name);
+  // Procedural household objects: "CLASS" (seed 0) or "CLASS:SEED".
+  const size_t colon = name.find(':');
+  const std::string class_name = name.substr(0, colon);
+  std::string known;
+  for (ObjectClass cls : AllObjectClasses()) {
+    known += ", " + ToString(cls);
+    if (class_name != ToString(cls)) continue;
+    if (colon == std::string::npos) return MakeObject(cls, 0);
+    const std::string seed = name.substr(colon + 1);
+    SOPE_CHECK(!seed.empty() && seed.size() <= 19 &&
+                   seed.find_first_not_of("0123456789") == std::string::npos,
+               "builtin mesh '{}': seed '{}' must be a non-negative integer", name, seed);
+    return MakeObject(cls, std::stoull(seed));
+  }
+  SOPE_THROW(
+      "unknown builtin mesh '{}' (known: sphere, box, cylinder, torus, plane{}, each object "
+      "class also as CLASS:SEED)",
+      name, known);
 }
 
 SceneObject MakeBackdrop(double distance, double width, double height, double albedo) {

@@ -25,8 +25,11 @@ SceneObject PlaceObject(const TriangleMesh& mesh, const Placement& placement,
                         double* applied_scale = nullptr);
 
 // The mesh named by `spec`: "builtin:NAME" for a procedural mesh (sphere, box, cylinder,
-// torus, plane; metres, about 0.2 m across), otherwise a mesh file read with ReadMesh.
-// Throws sope::Error naming an unknown builtin (and listing the known ones).
+// torus, plane; metres, about 0.2 m across), "builtin:CLASS" or "builtin:CLASS:SEED" for a
+// procedural household object (simulator/procedural_objects.h: mug, bottle, …; seed 0 by
+// default; "builtin:box" stays the primitive, "builtin:box:0" is the procedural box),
+// otherwise a mesh file read with ReadMesh. Throws sope::Error naming an unknown builtin
+// (and listing the known ones) or a malformed seed.
 TriangleMesh LoadMeshSpec(const std::string& spec);
 
 // A flat matte backdrop facing the camera at depth `distance` (metres), `width`×`height`
