@@ -38,6 +38,9 @@ void DecoderFlags::Add(CLI::App& app) {
                  "Also require |pattern-inverse| >= this fraction of white-black (0 = off; "
                  "0.15-0.25 with sharp optics)")
       ->capture_default_str();
+  app.add_option("--min-neighbours", options.min_consistent_neighbours,
+                 "Speckle filter: consistent decoded neighbours (of 8) a pixel needs (0 = off)")
+      ->capture_default_str();
   app.add_option("--decode-mode", mode,
                  "Bit decisions: auto (inverse if present), threshold, robust (indirect light)")
       ->capture_default_str();

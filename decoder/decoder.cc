@@ -572,6 +572,58 @@ Thresholds MakeThresholds(const DecodePlan& plan, const DecoderOptions& options,
   return thresholds;
 }
 
+// The speckle filter (DecoderOptions::min_consistent_neighbours): clears pixels with too
+// few consistent decoded neighbours. Decisions read the unfiltered mask and coordinates (a
+// copy of the mask; cleared coordinates are written only after each row's decisions lag
+// one row behind), so the result does not depend on the scan order.
+void RemoveSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map) {
+  const cv::Mat original = map->mask.clone();
+  const int rows = original.rows, cols = original.cols;
+  // An uncoded axis reads as all zeros: never inconsistent.
+  const cv::Mat zeros = cv::Mat::zeros(original.size(), CV_32FC1);
+  const cv::Mat& coord_x = map->HasX() ? map->proj_x : zeros;
+  const cv::Mat& coord_y = map->HasY() ? map->proj_y : zeros;
+  std::vector<int> cleared_previous, cleared_current;
+  auto clear = [&](int y, const std::vector<int>& xs) {
+    for (int x : xs) {
+      map->mask.at<uint8_t>(y, x) = 0;
+      map->confidence.at<float>(y, x) = 0.0f;
+      if (map->HasX()) map->proj_x.at<float>(y, x) = kNaN;
+      if (map->HasY()) map->proj_y.at<float>(y, x) = kNaN;
+    }
+  };
+  for (int y = 0; y < rows; ++y) {
+    cleared_current.clear();
+    const uint8_t* mask_rows[3];
+    const float* x_rows[3];
+    const float* y_rows[3];
+    int count_rows = 0;
+    for (int ny = std::max(0, y - 1); ny <= std::min(rows - 1, y + 1); ++ny, ++count_rows) {
+      mask_rows[count_rows] = original.ptr<uint8_t>(ny);
+      x_rows[count_rows] = coord_x.ptr<float>(ny);
+      y_rows[count_rows] = coord_y.ptr<float>(ny);
+    }
+    const int self = y == 0 ? 0 : 1;
+    for (int x = 0; x < cols; ++x) {
+      if (mask_rows[self][x] == 0) continue;
+      const float u = x_rows[self][x], v = y_rows[self][x];
+      int consistent = 0;
+      for (int r = 0; r < count_rows && consistent < min_neighbours; ++r) {
+        for (int nx = std::max(0, x - 1); nx <= std::min(cols - 1, x + 1); ++nx) {
+          if ((r == self && nx == x) || mask_rows[r][nx] == 0) continue;
+          consistent += std::abs(x_rows[r][nx] - u) <= tolerance &&
+                        std::abs(y_rows[r][nx] - v) <= tolerance;
+        }
+      }
+      if (consistent < min_neighbours) cleared_current.push_back(x);
+    }
+    // Row y − 1's coordinates are no longer read (row y + 1 reads rows y..y + 2).
+    if (y > 0) clear(y - 1, cleared_previous);
+    std::swap(cleared_previous, cleared_current);
+  }
+  if (rows > 0) clear(rows - 1, cleared_previous);
+}
+
 // Makes `image` a continuous image of this size and type that nobody else references,
 // reusing its memory when it already is one.
 void PrepareOutput(cv::Size size, int type, cv::Mat* image) {
@@ -740,6 +792,10 @@ void DecoderOptions::Check() const {
   SOPE_CHECK(
       std::isfinite(robust_black_level) && robust_black_level >= 0.0 && robust_black_level < 1.0,
       "robust_black_level {} must be in [0, 1)", robust_black_level);
+  SOPE_CHECK(min_consistent_neighbours >= 0 && min_consistent_neighbours <= 8,
+             "min_consistent_neighbours {} must be in 0..8", min_consistent_neighbours);
+  SOPE_CHECK(std::isfinite(neighbour_tolerance_px) && neighbour_tolerance_px >= 0.0,
+             "neighbour_tolerance_px {} must be ≥ 0", neighbour_tolerance_px);
   SOPE_CHECK(num_threads >= 1 && num_threads <= 1024, "num_threads {} must be in 1..1024",
              num_threads);
   SOPE_CHECK(bit_decision == BitDecision::kAuto || bit_decision == BitDecision::kThreshold ||
@@ -805,6 +861,10 @@ void Decode(const FrameSet& frame_set, const DecoderOptions& options, Correspond
         internal::MakeThresholds(plan, options,
                                  internal::PixelTraits<uint16_t>::kLevelsPerGreyLevel),
         outputs, options.num_threads);
+  }
+  if (options.min_consistent_neighbours > 0) {
+    internal::RemoveSpeckles(options.min_consistent_neighbours,
+                             static_cast<float>(options.neighbour_tolerance_px), map);
   }
 }
 

@@ -52,6 +52,12 @@ struct DecoderOptions {
   // kRobust only: projector black level b in [0, 1), the fraction of a white pixel's light
   // a black projector pixel still emits (Moreno & Taubin's b in the direct/global split).
   double robust_black_level = 0.0;
+  // Speckle filter: a decoded pixel must have at least this many of its 8 neighbours
+  // decoded to within `neighbour_tolerance_px` projector pixels on every coded axis, else
+  // it is invalidated. Isolated decodes are noise (e.g. pixels outside the projector's
+  // light that pass the thresholds by chance); surfaces decode in patches. 0 disables.
+  int min_consistent_neighbours = 2;
+  double neighbour_tolerance_px = 2.0;
   // Threads for the decode loop; 1 = single-threaded.
   int num_threads = 1;
 

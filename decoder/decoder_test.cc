@@ -568,7 +568,9 @@ TEST(SyntheticDecode, StraddlingPixelsResolveToTheGrayBoundary) {
       }
       set.images.push_back(row);
     }
-    const CorrespondenceMap map = Decode(set);
+    DecoderOptions options;
+    options.min_consistent_neighbours = 0;  // a single row: the per-pixel rule alone
+    const CorrespondenceMap map = Decode(set, options);
     for (int i = 0; i < kColumns - 1; ++i) {
       const bool valid = map.mask.at<uint8_t>(0, i) != 0;
       if (code == PatternCode::kGray) {
@@ -582,6 +584,39 @@ TEST(SyntheticDecode, StraddlingPixelsResolveToTheGrayBoundary) {
       }
     }
   }
+}
+
+// The speckle filter removes isolated decodes (noise that passes every threshold) and
+// keeps surfaces, which decode in patches.
+TEST(SyntheticDecode, SpeckleFilterRemovesIsolatedDecodesOnly) {
+  SceneOptions scene;
+  scene.patterns.projector_width = 300;
+  scene.patterns.projector_height = 200;
+  SyntheticCapture capture = RenderScene(scene);
+  // Copy one lit pixel's values into a single pixel of the dark (deep shadow) region: it
+  // decodes there, alone among undecodable neighbours.
+  cv::Point lit(-1, -1), dark(-1, -1);
+  for (int v = 2; v < capture.in_shadow.rows - 2 && (lit.x < 0 || dark.x < 0); ++v) {
+    for (int u = 2; u < capture.in_shadow.cols - 2; ++u) {
+      const cv::Rect around(u - 2, v - 2, 5, 5);
+      if (dark.x < 0 && cv::countNonZero(capture.in_shadow(around)) == 25) dark = {u, v};
+      if (lit.x < 0 && cv::countNonZero(capture.in_shadow(around)) == 0 && u > 100) lit = {u, v};
+    }
+  }
+  ASSERT_GE(lit.x, 0);
+  ASSERT_GE(dark.x, 0);
+  for (cv::Mat& image : capture.frame_set.images) image.at<uint8_t>(dark) = image.at<uint8_t>(lit);
+  DecoderOptions unfiltered;
+  unfiltered.min_consistent_neighbours = 0;
+  const CorrespondenceMap raw = Decode(capture.frame_set, unfiltered);
+  const CorrespondenceMap filtered = Decode(capture.frame_set);
+  EXPECT_NE(raw.mask.at<uint8_t>(dark), 0);       // the planted pixel decodes …
+  EXPECT_EQ(filtered.mask.at<uint8_t>(dark), 0);  // … and the filter removes it
+  EXPECT_NE(filtered.mask.at<uint8_t>(lit), 0);
+  // On the lit surface the filter removes (almost) nothing.
+  const Score before = Evaluate(raw, capture), after = Evaluate(filtered, capture);
+  EXPECT_GE(after.CorrectRate(), before.CorrectRate() - 0.002);
+  ExpectConsistentMap(filtered);
 }
 
 TEST(SyntheticDecode, CodesBeyondTheProjectorAreInvalid) {
