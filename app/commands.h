@@ -9,5 +9,6 @@ int RunPatterns(int argc, char** argv);
 int RunSimulate(int argc, char** argv);
 int RunDecode(int argc, char** argv);
 int RunScan(int argc, char** argv);
+int RunProject(int argc, char** argv);
 
 }  // namespace sope

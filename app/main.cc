@@ -25,6 +25,7 @@ constexpr Command kCommands[] = {
     {"simulate", sope::RunSimulate, "render a frame set on the virtual rig, with ground truth"},
     {"decode", sope::RunDecode, "decode a frame set into projector correspondence maps"},
     {"scan", sope::RunScan, "decode and triangulate a frame set into a point cloud"},
+    {"project", sope::RunProject, "show the pattern sequence on the projector, stepping with keys"},
 };
 
 void PrintUsage(std::FILE* stream) {

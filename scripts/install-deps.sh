@@ -6,7 +6,7 @@ set -euo pipefail
 packages=(
   build-essential cmake pkg-config ccache
   libopencv-dev libopencv-contrib-dev libpcl-dev libceres-dev libeigen3-dev
-  libglfw3-dev libosmesa6-dev libv4l-dev
+  libglfw3-dev libx11-dev libosmesa6-dev libv4l-dev
   libcli11-dev nlohmann-json3-dev libfmt-dev libspdlog-dev
   libfaiss-dev libtbb-dev libblas-dev liblapack-dev
   libgtest-dev libbenchmark-dev
