@@ -8,7 +8,7 @@ packages=(
   libopencv-dev libopencv-contrib-dev libpcl-dev libceres-dev libeigen3-dev
   libglfw3-dev libx11-dev libosmesa6-dev libv4l-dev
   libcli11-dev nlohmann-json3-dev libfmt-dev libspdlog-dev
-  libfaiss-dev libtbb-dev libblas-dev liblapack-dev
+  libfaiss-dev libtbb-dev libblas-dev liblapack-dev liblz4-dev
   libgtest-dev libbenchmark-dev
   xvfb xauth
 )

@@ -1,0 +1,532 @@
+#include "recogniser/cloud_filters.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <numeric>
+#include <utility>
+
+#include <Eigen/Eigenvalues>
+
+#include "core/error.h"
+
+namespace sope {
+namespace internal {
+namespace {
+
+constexpr int kAxisBits = 21;
+constexpr int64_t kAxisLimit = int64_t{1} << kAxisBits;  // cells per axis in a packed key
+constexpr int64_t kVoxelOffset = int64_t{1} << (kAxisBits - 1);
+
+uint64_t PackKey(int64_t x, int64_t y, int64_t z) {
+  // z slowest, x fastest: sorting keys sorts as PCL's VoxelGrid orders its voxels.
+  return (static_cast<uint64_t>(z) << (2 * kAxisBits)) | (static_cast<uint64_t>(y) << kAxisBits) |
+         static_cast<uint64_t>(x);
+}
+
+void UnpackKey(uint64_t key, int64_t* x, int64_t* y, int64_t* z) {
+  const uint64_t mask = static_cast<uint64_t>(kAxisLimit - 1);
+  *x = static_cast<int64_t>(key & mask);
+  *y = static_cast<int64_t>((key >> kAxisBits) & mask);
+  *z = static_cast<int64_t>(key >> (2 * kAxisBits));
+}
+
+uint64_t HashKey(uint64_t key) {
+  // SplitMix64 finaliser: cheap and mixes the packed coordinates well.
+  key ^= key >> 30;
+  key *= 0xbf58476d1ce4e5b9ULL;
+  key ^= key >> 27;
+  key *= 0x94d049bb133111ebULL;
+  key ^= key >> 31;
+  return key;
+}
+
+size_t NextPowerOfTwo(size_t n) {
+  size_t p = 1;
+  while (p < n) p <<= 1;
+  return p;
+}
+
+// Squared distance and index packed so that integer order = (distance, index) order
+// (IEEE-754 bit patterns of non-negative floats are monotonic).
+uint64_t PackCandidate(float sq_distance, int32_t index) {
+  uint32_t bits;
+  std::memcpy(&bits, &sq_distance, sizeof(bits));
+  return (static_cast<uint64_t>(bits) << 32) | static_cast<uint32_t>(index);
+}
+float CandidateDistance(uint64_t packed) {
+  const uint32_t bits = static_cast<uint32_t>(packed >> 32);
+  float value;
+  std::memcpy(&value, &bits, sizeof(value));
+  return value;
+}
+int32_t CandidateIndex(uint64_t packed) { return static_cast<int32_t>(packed & 0xffffffffu); }
+
+// Relative safety margin on the "no closer point outside the searched block" test: float
+// rounding of a squared distance is far below it.
+constexpr float kBoundMargin = 1.0f - 1e-5f;
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------
+// Voxel grid
+
+std::vector<Eigen::Vector3f> VoxelGridCentroids(const std::vector<Eigen::Vector3f>& points,
+                                                float leaf, std::vector<uint32_t>* counts) {
+  SOPE_CHECK(std::isfinite(leaf) && leaf > 0.0f, "voxel grid: leaf must be > 0 metres, got {}",
+             leaf);
+  if (counts != nullptr) counts->clear();
+  if (points.empty()) return {};
+  const float inverse_leaf = 1.0f / leaf;  // float, as pcl::VoxelGrid
+
+  struct Voxel {
+    uint64_t key;
+    double sum[3];
+    uint32_t count;
+  };
+  std::vector<Voxel> voxels;
+  voxels.reserve(std::min<size_t>(points.size(), 4096));
+  size_t capacity = NextPowerOfTwo(std::max<size_t>(1024, points.size() / 16));
+  std::vector<int32_t> table(capacity, -1);
+  std::vector<uint64_t> table_keys(capacity, 0);
+
+  auto rehash = [&](size_t new_capacity) {
+    capacity = new_capacity;
+    table.assign(capacity, -1);
+    table_keys.assign(capacity, 0);
+    for (size_t v = 0; v < voxels.size(); ++v) {
+      size_t slot = HashKey(voxels[v].key) & (capacity - 1);
+      while (table[slot] >= 0) slot = (slot + 1) & (capacity - 1);
+      table[slot] = static_cast<int32_t>(v);
+      table_keys[slot] = voxels[v].key;
+    }
+  };
+
+  uint64_t last_key = ~uint64_t{0};
+  int32_t last_voxel = -1;
+  for (const Eigen::Vector3f& p : points) {
+    int64_t cell[3];
+    for (int a = 0; a < 3; ++a) {
+      const int64_t c = static_cast<int64_t>(std::floor(p[a] * inverse_leaf)) + kVoxelOffset;
+      SOPE_CHECK(c >= 0 && c < kAxisLimit,
+                 "voxel grid: point ({}, {}, {}) is more than 2^20 leaves ({} m) from the origin",
+                 p.x(), p.y(), p.z(), leaf);
+      cell[a] = c;
+    }
+    const uint64_t key = PackKey(cell[0], cell[1], cell[2]);
+    int32_t voxel = last_voxel;
+    if (key != last_key) {
+      size_t slot = HashKey(key) & (capacity - 1);
+      while (table[slot] >= 0 && table_keys[slot] != key) slot = (slot + 1) & (capacity - 1);
+      if (table[slot] < 0) {
+        voxel = static_cast<int32_t>(voxels.size());
+        voxels.push_back(Voxel{key, {0.0, 0.0, 0.0}, 0});
+        table[slot] = voxel;
+        table_keys[slot] = key;
+        if (2 * voxels.size() > capacity) rehash(2 * capacity);
+      } else {
+        voxel = table[slot];
+      }
+      last_key = key;
+      last_voxel = voxel;
+    }
+    Voxel& v = voxels[voxel];
+    v.sum[0] += p.x();
+    v.sum[1] += p.y();
+    v.sum[2] += p.z();
+    ++v.count;
+  }
+
+  std::vector<int32_t> order(voxels.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(),
+            [&](int32_t a, int32_t b) { return voxels[a].key < voxels[b].key; });
+  std::vector<Eigen::Vector3f> centroids;
+  centroids.reserve(voxels.size());
+  if (counts != nullptr) counts->reserve(voxels.size());
+  for (int32_t v : order) {
+    const Voxel& voxel = voxels[v];
+    if (counts != nullptr) counts->push_back(voxel.count);
+    const double inv = 1.0 / voxel.count;
+    centroids.emplace_back(static_cast<float>(voxel.sum[0] * inv),
+                           static_cast<float>(voxel.sum[1] * inv),
+                           static_cast<float>(voxel.sum[2] * inv));
+  }
+  return centroids;
+}
+
+// ---------------------------------------------------------------------------------------
+// Neighbour grid
+
+NeighbourGrid::NeighbourGrid(const std::vector<Eigen::Vector3f>& points, int expected_k)
+    : input_(points) {
+  if (input_.empty()) return;
+  Eigen::Vector3d lo = input_[0].cast<double>(), hi = lo;
+  for (const Eigen::Vector3f& p : input_) {
+    SOPE_CHECK(std::isfinite(p.x()) && std::isfinite(p.y()) && std::isfinite(p.z()),
+               "NeighbourGrid: non-finite point ({}, {}, {})", p.x(), p.y(), p.z());
+    lo = lo.cwiseMin(p.cast<double>());
+    hi = hi.cwiseMax(p.cast<double>());
+  }
+  origin_ = lo;
+  Eigen::Vector3d extent = hi - lo;
+  std::sort(extent.data(), extent.data() + 3, std::greater<double>());
+  const double n = static_cast<double>(input_.size());
+  // Surface samples: spacing ≈ √(area / n) with the area of the two largest extents.
+  double cell =
+      extent[0] > 0.0 ? std::sqrt(extent[0] * std::max(extent[1], 1e-3 * extent[0]) / n) : 1.0;
+  Build(cell);
+  const double target = std::max(3.0, (expected_k + 1) / 2.0);
+  const double occupancy = n / static_cast<double>(cells_.size());
+  if (cells_.size() > 1 && (occupancy < 0.5 * target || occupancy > 2.0 * target)) {
+    Build(cell_ * std::clamp(std::sqrt(target / occupancy), 0.25, 4.0));
+  }
+}
+
+void NeighbourGrid::Build(double cell_size) {
+  Eigen::Vector3d hi = origin_;
+  for (const Eigen::Vector3f& p : input_) hi = hi.cwiseMax(p.cast<double>());
+  const double largest = (hi - origin_).maxCoeff();
+  cell_ = std::max({cell_size, largest / static_cast<double>(kAxisLimit - 2), 1e-12});
+  inv_cell_ = 1.0 / cell_;
+  for (int a = 0; a < 3; ++a) {
+    dims_[a] = static_cast<int64_t>(std::floor((hi[a] - origin_[a]) * inv_cell_)) + 1;
+  }
+
+  const size_t n = input_.size();
+  std::vector<std::pair<uint64_t, int32_t>> keyed(n);
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3f& p = input_[i];
+    keyed[i] = {Key(CellCoord(p.x(), 0), CellCoord(p.y(), 1), CellCoord(p.z(), 2)),
+                static_cast<int32_t>(i)};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  xs_.resize(n);
+  ys_.resize(n);
+  zs_.resize(n);
+  original_index_.resize(n);
+  cells_.clear();
+  for (size_t s = 0; s < n; ++s) {
+    const int32_t i = keyed[s].second;
+    xs_[s] = input_[i].x();
+    ys_[s] = input_[i].y();
+    zs_[s] = input_[i].z();
+    original_index_[s] = i;
+    if (cells_.empty() || cells_.back().key != keyed[s].first) {
+      cells_.push_back(Cell{keyed[s].first, static_cast<uint32_t>(s), static_cast<uint32_t>(s)});
+    }
+    cells_.back().end = static_cast<uint32_t>(s + 1);
+  }
+  dense_.clear();
+  table_.clear();
+  const double grid_cells = static_cast<double>(dims_[0]) * dims_[1] * dims_[2];
+  if (grid_cells <= std::max(16.0 * n, 65536.0) && grid_cells <= double(1 << 24)) {
+    dense_.assign(static_cast<size_t>(grid_cells), -1);
+    for (size_t c = 0; c < cells_.size(); ++c) {
+      int64_t x, y, z;
+      UnpackKey(cells_[c].key, &x, &y, &z);
+      dense_[static_cast<size_t>(x + dims_[0] * (y + dims_[1] * z))] = static_cast<int32_t>(c);
+    }
+    return;
+  }
+  const size_t capacity = NextPowerOfTwo(2 * cells_.size() + 2);
+  table_.assign(capacity, -1);
+  table_mask_ = capacity - 1;
+  for (size_t c = 0; c < cells_.size(); ++c) {
+    uint64_t slot = HashKey(cells_[c].key) & table_mask_;
+    while (table_[slot] >= 0) slot = (slot + 1) & table_mask_;
+    table_[slot] = static_cast<int32_t>(c);
+  }
+}
+
+int64_t NeighbourGrid::CellCoord(float value, int axis) const {
+  return static_cast<int64_t>(std::floor((static_cast<double>(value) - origin_[axis]) * inv_cell_));
+}
+
+uint64_t NeighbourGrid::Key(int64_t cx, int64_t cy, int64_t cz) const {
+  return PackKey(std::clamp<int64_t>(cx, 0, dims_[0] - 1), std::clamp<int64_t>(cy, 0, dims_[1] - 1),
+                 std::clamp<int64_t>(cz, 0, dims_[2] - 1));
+}
+
+const NeighbourGrid::Cell* NeighbourGrid::Find(int64_t cx, int64_t cy, int64_t cz) const {
+  if (cx < 0 || cy < 0 || cz < 0 || cx >= dims_[0] || cy >= dims_[1] || cz >= dims_[2]) {
+    return nullptr;
+  }
+  if (!dense_.empty()) {
+    const int32_t c = dense_[static_cast<size_t>(cx + dims_[0] * (cy + dims_[1] * cz))];
+    return c >= 0 ? &cells_[c] : nullptr;
+  }
+  const uint64_t key = PackKey(cx, cy, cz);
+  uint64_t slot = HashKey(key) & table_mask_;
+  while (table_[slot] >= 0) {
+    const Cell& cell = cells_[table_[slot]];
+    if (cell.key == key) return &cell;
+    slot = (slot + 1) & table_mask_;
+  }
+  return nullptr;
+}
+
+void NeighbourGrid::GatherRing(int64_t cx, int64_t cy, int64_t cz, int64_t ring,
+                               std::vector<const Cell*>* cells) const {
+  for (int64_t dz = -ring; dz <= ring; ++dz) {
+    for (int64_t dy = -ring; dy <= ring; ++dy) {
+      const bool inner = std::abs(dz) < ring && std::abs(dy) < ring;
+      // Inside the ring's shell only x = ±ring are new.
+      const int64_t step = inner ? 2 * ring : 1;
+      for (int64_t dx = -ring; dx <= ring; dx += std::max<int64_t>(step, 1)) {
+        if (const Cell* cell = Find(cx + dx, cy + dy, cz + dz)) cells->push_back(cell);
+      }
+    }
+  }
+}
+
+void NeighbourGrid::KNearest(const Eigen::Vector3f& query, int k, std::vector<int32_t>* indices,
+                             std::vector<float>* sq_distances) const {
+  indices->clear();
+  sq_distances->clear();
+  const int want = std::min<int>(k, static_cast<int>(size()));
+  if (want <= 0) return;
+  const int64_t c[3] = {CellCoord(query.x(), 0), CellCoord(query.y(), 1), CellCoord(query.z(), 2)};
+  // Distance from the query to the faces of its own cell.
+  double face = std::numeric_limits<double>::infinity();
+  for (int a = 0; a < 3; ++a) {
+    const double lo = origin_[a] + c[a] * cell_;
+    face = std::min({face, query[a] - lo, lo + cell_ - query[a]});
+  }
+  face = std::max(face, 0.0);
+  std::vector<uint64_t> candidates;
+  std::vector<const Cell*> cells;
+  // Rings before the first one that reaches the grid are empty.
+  int64_t first_ring = 0;
+  for (int a = 0; a < 3; ++a) {
+    first_ring = std::max({first_ring, -c[a], c[a] - (dims_[a] - 1)});
+  }
+  bool brute_force = false;
+  for (int64_t ring = 0;; ++ring) {
+    // Far from the cloud (an isolated outlier, a query point outside it) shells of empty
+    // cells dominate: once a shell holds more cells than the grid has occupied ones, scan
+    // every point instead (O(n), exact).
+    const double shell_cells =
+        std::pow(2.0 * ring + 1.0, 3) - std::pow(std::max(2.0 * ring - 1.0, 0.0), 3);
+    if (ring > 1 && shell_cells > 4.0 * static_cast<double>(cells_.size())) {
+      brute_force = true;
+      break;
+    }
+    if (ring < first_ring) continue;
+    cells.clear();
+    GatherRing(c[0], c[1], c[2], ring, &cells);
+    for (const Cell* cell : cells) {
+      for (uint32_t s = cell->begin; s < cell->end; ++s) {
+        const float dx = xs_[s] - query.x(), dy = ys_[s] - query.y(), dz = zs_[s] - query.z();
+        candidates.push_back(PackCandidate(dx * dx + dy * dy + dz * dz, original_index_[s]));
+      }
+    }
+    bool covered = true;
+    for (int a = 0; a < 3; ++a)
+      covered = covered && c[a] - ring <= 0 && c[a] + ring >= dims_[a] - 1;
+    if (static_cast<int>(candidates.size()) >= want) {
+      std::nth_element(candidates.begin(), candidates.begin() + (want - 1), candidates.end());
+      const double bound = ring * cell_ + face;
+      if (covered || CandidateDistance(candidates[want - 1]) <
+                         static_cast<float>(bound * bound) * kBoundMargin) {
+        break;
+      }
+    } else if (covered) {
+      break;
+    }
+  }
+  if (brute_force) {
+    candidates.clear();
+    for (size_t s = 0; s < size(); ++s) {
+      const float dx = xs_[s] - query.x(), dy = ys_[s] - query.y(), dz = zs_[s] - query.z();
+      candidates.push_back(PackCandidate(dx * dx + dy * dy + dz * dz, original_index_[s]));
+    }
+    std::nth_element(candidates.begin(), candidates.begin() + (want - 1), candidates.end());
+  }
+  std::sort(candidates.begin(), candidates.begin() + want);
+  for (int j = 0; j < want; ++j) {
+    indices->push_back(CandidateIndex(candidates[j]));
+    sq_distances->push_back(CandidateDistance(candidates[j]));
+  }
+}
+
+NeighbourTable NeighbourGrid::AllKNearest(int k) const {
+  SOPE_CHECK(k >= 1, "AllKNearest: k must be ≥ 1, got {}", k);
+  NeighbourTable table;
+  const size_t n = size();
+  table.count = static_cast<int>(std::min<size_t>(k, n));
+  if (table.count == 0) return table;
+  table.index.resize(n * table.count);
+  table.sq_distance.resize(n * table.count);
+  const int others = table.count - 1;
+
+  // Candidates of one cell's points: the 3×3×3 block around it ("near"), and the ring of
+  // cells at Chebyshev distance 2 ("far", gathered only when a point needs it).
+  struct Candidates {
+    std::vector<float> x, y, z;
+    std::vector<int32_t> index;
+    void Clear() {
+      x.clear();
+      y.clear();
+      z.clear();
+      index.clear();
+    }
+  };
+  auto gather = [&](const std::vector<const Cell*>& cells, Candidates* out) {
+    out->Clear();
+    for (const Cell* c : cells) {
+      out->x.insert(out->x.end(), xs_.begin() + c->begin, xs_.begin() + c->end);
+      out->y.insert(out->y.end(), ys_.begin() + c->begin, ys_.begin() + c->end);
+      out->z.insert(out->z.end(), zs_.begin() + c->begin, zs_.begin() + c->end);
+      out->index.insert(out->index.end(), original_index_.begin() + c->begin,
+                        original_index_.begin() + c->end);
+    }
+  };
+  std::vector<uint64_t> candidates;
+  auto add = [&](const Candidates& from, float qx, float qy, float qz, int32_t self) {
+    for (size_t j = 0; j < from.index.size(); ++j) {
+      const float dx = from.x[j] - qx, dy = from.y[j] - qy, dz = from.z[j] - qz;
+      if (from.index[j] != self) {
+        candidates.push_back(PackCandidate(dx * dx + dy * dy + dz * dz, from.index[j]));
+      }
+    }
+  };
+  // True (and the first `others` candidates sorted) when the others-th nearest candidate is
+  // closer than `bound`, the radius the searched block is guaranteed to cover.
+  auto settle = [&](double bound) {
+    if (static_cast<int>(candidates.size()) < others) return false;
+    std::nth_element(candidates.begin(), candidates.begin() + (others - 1), candidates.end());
+    if (!(CandidateDistance(candidates[others - 1]) <
+          static_cast<float>(bound * bound) * kBoundMargin)) {
+      return false;
+    }
+    std::sort(candidates.begin(), candidates.begin() + others);
+    return true;
+  };
+
+  std::vector<const Cell*> cells;
+  Candidates near, far;
+  std::vector<int32_t> slow_indices;
+  std::vector<float> slow_distances;
+  for (const Cell& cell : cells_) {
+    int64_t gx, gy, gz;
+    UnpackKey(cell.key, &gx, &gy, &gz);
+    cells.clear();
+    GatherRing(gx, gy, gz, 0, &cells);
+    GatherRing(gx, gy, gz, 1, &cells);
+    gather(cells, &near);
+    bool far_ready = false;
+    const double lo[3] = {origin_[0] + gx * cell_, origin_[1] + gy * cell_,
+                          origin_[2] + gz * cell_};
+    for (uint32_t s = cell.begin; s < cell.end; ++s) {
+      const float qx = xs_[s], qy = ys_[s], qz = zs_[s];
+      const int32_t self = original_index_[s];
+      int32_t* out_index = table.index.data() + static_cast<size_t>(self) * table.count;
+      float* out_distance = table.sq_distance.data() + static_cast<size_t>(self) * table.count;
+      out_index[0] = self;
+      out_distance[0] = 0.0f;
+      if (others == 0) continue;
+      double face = std::numeric_limits<double>::infinity();
+      const float q[3] = {qx, qy, qz};
+      for (int a = 0; a < 3; ++a) face = std::min({face, q[a] - lo[a], lo[a] + cell_ - q[a]});
+      face = std::max(face, 0.0);
+      candidates.clear();
+      add(near, qx, qy, qz, self);
+      bool done = settle(cell_ + face);
+      if (!done) {
+        if (!far_ready) {
+          cells.clear();
+          GatherRing(gx, gy, gz, 2, &cells);
+          gather(cells, &far);
+          far_ready = true;
+        }
+        add(far, qx, qy, qz, self);
+        done = settle(2.0 * cell_ + face);
+      }
+      if (done) {
+        for (int j = 0; j < others; ++j) {
+          out_index[j + 1] = CandidateIndex(candidates[j]);
+          out_distance[j + 1] = CandidateDistance(candidates[j]);
+        }
+        continue;
+      }
+      // Rare: a sparse neighbourhood; expand shells around the point. The point itself is
+      // among the k + 1 nearest (distance 0; a coincident point with a lower index may
+      // precede it), so drop it and keep the first `others` of the rest.
+      KNearest(input_[self], table.count + 1, &slow_indices, &slow_distances);
+      int j = 0;
+      for (size_t m = 0; m < slow_indices.size() && j < others; ++m) {
+        if (slow_indices[m] == self) continue;
+        out_index[j + 1] = slow_indices[m];
+        out_distance[j + 1] = slow_distances[m];
+        ++j;
+      }
+    }
+  }
+  return table;
+}
+
+// ---------------------------------------------------------------------------------------
+// Statistical outlier removal and normals
+
+std::vector<uint8_t> StatisticalInlierMask(const NeighbourTable& table, int mean_k,
+                                           double stddev_multiplier,
+                                           const std::vector<uint32_t>* weights, double min_ratio) {
+  const size_t n = table.size();
+  std::vector<uint8_t> keep(n, 1);
+  const int used = std::min(mean_k, table.count - 1);
+  if (n < 2 || used < 1) return keep;
+  SOPE_CHECK(weights == nullptr || weights->size() == n,
+             "StatisticalInlierMask: {} weights for {} points", weights ? weights->size() : 0, n);
+  std::vector<float> distances(n);
+  double sum = 0.0, sq_sum = 0.0, count = 0.0;
+  for (size_t i = 0; i < n; ++i) {
+    const float* d = table.row_sq_distance(i);
+    double row_sum = 0.0;
+    for (int j = 1; j <= used; ++j) row_sum += std::sqrt(d[j]);
+    distances[i] = static_cast<float>(row_sum / used);
+    const double w = weights != nullptr ? (*weights)[i] : 1.0;
+    sum += w * distances[i];
+    sq_sum += w * (distances[i] * distances[i]);  // float product, as PCL
+    count += w;
+  }
+  const double mean = sum / count;
+  const double variance = (sq_sum - sum * sum / count) / (count - 1.0);
+  const double threshold =
+      std::max(mean + stddev_multiplier * std::sqrt(std::max(variance, 0.0)), min_ratio * mean);
+  for (size_t i = 0; i < n; ++i) keep[i] = !(distances[i] > threshold);
+  return keep;
+}
+
+bool FitNormal(const std::vector<Eigen::Vector3f>& points, const int32_t* neighbours, int count,
+               const Eigen::Vector3f& point, const Eigen::Vector3f& viewpoint,
+               Eigen::Vector3f* normal, float* curvature) {
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  *normal = Eigen::Vector3f::Constant(nan);
+  *curvature = nan;
+  if (count < 3) return false;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (int j = 0; j < count; ++j) mean += points[neighbours[j]].cast<double>();
+  mean /= count;
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+  for (int j = 0; j < count; ++j) {
+    const Eigen::Vector3d d = points[neighbours[j]].cast<double>() - mean;
+    covariance.noalias() += d * d.transpose();
+  }
+  covariance /= count;
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver;
+  solver.computeDirect(covariance);
+  const Eigen::Vector3d eigenvalues = solver.eigenvalues();  // ascending
+  Eigen::Vector3d n = solver.eigenvectors().col(0);
+  const double trace = covariance.trace();
+  if (!n.allFinite() || !(trace > 0.0)) return false;
+  n.normalize();
+  if ((viewpoint - point).cast<double>().dot(n) < 0.0) n = -n;
+  *normal = n.cast<float>();
+  *curvature = static_cast<float>(std::abs(eigenvalues[0] / trace));
+  return true;
+}
+
+}  // namespace internal
+}  // namespace sope
