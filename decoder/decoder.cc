@@ -323,6 +323,18 @@ void FinishPixels(int n, const uint8_t* __restrict code_x_high,
     confidence[i] = valid ? std::min(relative, 1.0f) : 0.0f;
   }
   for (int i = 0; i < n; ++i) {
+    // Skip 8 pixels at a time while none has a weak bit (the common case).
+    if ((i & 7) == 0 && i + 8 <= n) {
+      uint64_t any = 0, word = 0;
+      for (const uint8_t* plane : {weak_x_high, weak_x_low, weak_y_high, weak_y_low}) {
+        std::memcpy(&word, plane + i, sizeof(word));
+        any |= word;
+      }
+      if (any == 0) {
+        i += 7;
+        continue;
+      }
+    }
     const int weak_x = (weak_x_high[i] << 8) | weak_x_low[i];
     const int weak_y = (weak_y_high[i] << 8) | weak_y_low[i];
     if ((weak_x | weak_y) == 0 || contrast[i] < min_contrast || margin[i] < solid_margin) {
@@ -572,52 +584,62 @@ Thresholds MakeThresholds(const DecodePlan& plan, const DecoderOptions& options,
   return thresholds;
 }
 
+// Adds to count[x] (x in [0, n)) whether the neighbour at column x + dx of the rows
+// (nu, nv) agrees with (u, v) within `tolerance` on both axes. Invalid pixels hold NaN,
+// whose comparisons are false, so no mask is needed; an uncoded axis passes one row of
+// zeros as both. Branch-free so that it vectorises.
+inline void CountAgreeing(const float* __restrict u, const float* __restrict v,
+                          const float* __restrict nu, const float* __restrict nv, int dx, int n,
+                          float tolerance, uint8_t* __restrict count) {
+  const int begin = std::max(0, -dx), end = std::min(n, n - dx);
+  for (int x = begin; x < end; ++x) {
+    const float du = nu[x + dx] - u[x], dv = nv[x + dx] - v[x];
+    const bool agree = (du <= tolerance) & (du >= -tolerance) & (dv <= tolerance) &
+                       (dv >= -tolerance);
+    count[x] = static_cast<uint8_t>(count[x] + agree);
+  }
+}
+
 // The speckle filter (DecoderOptions::min_consistent_neighbours): clears pixels with too
-// few consistent decoded neighbours. Decisions read the unfiltered mask and coordinates (a
-// copy of the mask; cleared coordinates are written only after each row's decisions lag
-// one row behind), so the result does not depend on the scan order.
+// few agreeing decoded neighbours. Every decision reads unfiltered coordinates: row y is
+// cleared only once row y + 1 has been decided.
 void RemoveSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map) {
-  const cv::Mat original = map->mask.clone();
-  const int rows = original.rows, cols = original.cols;
-  // An uncoded axis reads as all zeros: never inconsistent.
-  const cv::Mat zeros = cv::Mat::zeros(original.size(), CV_32FC1);
-  const cv::Mat& coord_x = map->HasX() ? map->proj_x : zeros;
-  const cv::Mat& coord_y = map->HasY() ? map->proj_y : zeros;
+  const int rows = map->mask.rows, cols = map->mask.cols;
+  const std::vector<float> zeros(cols, 0.0f);
+  auto row_of = [&](const cv::Mat& image, int y) -> const float* {
+    return image.empty() ? zeros.data() : image.ptr<float>(y);
+  };
+  std::vector<uint8_t> count(cols);
   std::vector<int> cleared_previous, cleared_current;
   auto clear = [&](int y, const std::vector<int>& xs) {
+    uint8_t* mask = map->mask.ptr<uint8_t>(y);
+    float* confidence = map->confidence.ptr<float>(y);
+    float* u = map->HasX() ? map->proj_x.ptr<float>(y) : nullptr;
+    float* v = map->HasY() ? map->proj_y.ptr<float>(y) : nullptr;
     for (int x : xs) {
-      map->mask.at<uint8_t>(y, x) = 0;
-      map->confidence.at<float>(y, x) = 0.0f;
-      if (map->HasX()) map->proj_x.at<float>(y, x) = kNaN;
-      if (map->HasY()) map->proj_y.at<float>(y, x) = kNaN;
+      mask[x] = 0;
+      confidence[x] = 0.0f;
+      if (u != nullptr) u[x] = kNaN;
+      if (v != nullptr) v[x] = kNaN;
     }
   };
   for (int y = 0; y < rows; ++y) {
-    cleared_current.clear();
-    const uint8_t* mask_rows[3];
-    const float* x_rows[3];
-    const float* y_rows[3];
-    int count_rows = 0;
-    for (int ny = std::max(0, y - 1); ny <= std::min(rows - 1, y + 1); ++ny, ++count_rows) {
-      mask_rows[count_rows] = original.ptr<uint8_t>(ny);
-      x_rows[count_rows] = coord_x.ptr<float>(ny);
-      y_rows[count_rows] = coord_y.ptr<float>(ny);
-    }
-    const int self = y == 0 ? 0 : 1;
-    for (int x = 0; x < cols; ++x) {
-      if (mask_rows[self][x] == 0) continue;
-      const float u = x_rows[self][x], v = y_rows[self][x];
-      int consistent = 0;
-      for (int r = 0; r < count_rows && consistent < min_neighbours; ++r) {
-        for (int nx = std::max(0, x - 1); nx <= std::min(cols - 1, x + 1); ++nx) {
-          if ((r == self && nx == x) || mask_rows[r][nx] == 0) continue;
-          consistent += std::abs(x_rows[r][nx] - u) <= tolerance &&
-                        std::abs(y_rows[r][nx] - v) <= tolerance;
-        }
+    std::fill(count.begin(), count.end(), uint8_t{0});
+    const float* u = row_of(map->proj_x, y);
+    const float* v = row_of(map->proj_y, y);
+    for (int ny = std::max(0, y - 1); ny <= std::min(rows - 1, y + 1); ++ny) {
+      const float* nu = row_of(map->proj_x, ny);
+      const float* nv = row_of(map->proj_y, ny);
+      for (int dx = -1; dx <= 1; ++dx) {
+        if (dx == 0 && ny == y) continue;
+        CountAgreeing(u, v, nu, nv, dx, cols, tolerance, count.data());
       }
-      if (consistent < min_neighbours) cleared_current.push_back(x);
     }
-    // Row y − 1's coordinates are no longer read (row y + 1 reads rows y..y + 2).
+    cleared_current.clear();
+    const uint8_t* mask = map->mask.ptr<uint8_t>(y);
+    for (int x = 0; x < cols; ++x) {
+      if (mask[x] != 0 && count[x] < min_neighbours) cleared_current.push_back(x);
+    }
     if (y > 0) clear(y - 1, cleared_previous);
     std::swap(cleared_previous, cleared_current);
   }
