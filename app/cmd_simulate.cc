@@ -1,4 +1,5 @@
 // sope simulate --mesh FILE [--object-pose rx,ry,rz,tx,ty,tz] [--rig RIG.yaml] --out DIR
+// sope simulate --board COLSxROWSxSQUARE_M --views N [--rig RIG.yaml] --out DIR
 #include <opencv2/core.hpp>
 #include <spdlog/spdlog.h>
 
@@ -8,6 +9,7 @@
 #include "core/error.h"
 #include "core/mesh.h"
 #include "core/rig_calibration.h"
+#include "simulator/board_sequence.h"
 #include "simulator/scene_builder.h"
 #include "simulator/simulate_scan.h"
 #include "simulator/virtual_rig.h"
@@ -25,16 +27,29 @@ constexpr double kDefaultObjectSize = 0.25;
 int RunSimulate(int argc, char** argv) {
   CLI::App app{"Render a structured-light frame set of a mesh on the virtual rig (OSMesa), "
                "with ground truth: gt_depth.exr, gt_proj_x/y.exr, gt_lit.png, gt_pose.json "
-               "and the rig's calibration.yaml.",
+               "and the rig's calibration.yaml. With --board instead of --mesh: a checkerboard "
+               "calibration sequence, DIR/view_000/... (one frame set per board pose), "
+               "DIR/calibration_true.yaml and DIR/gt_board_poses.json.",
                "sope simulate"};
   std::string mesh_path, pose_text = "0,0,0,0,0,0.6", rig_path, out;
   double size = -1.0, backdrop = 0.0;
   SensorOptions sensor;
   cli::PatternFlags pattern_flags;
   cli::LoggingFlags logging;
-  app.add_option("--mesh", mesh_path,
-                 "Mesh file (OBJ, PLY, OFF, STL) or builtin:sphere|box|cylinder|torus|plane")
-      ->required();
+  std::string board_text;
+  BoardSequenceOptions board_options;
+  CLI::Option* mesh_option = app.add_option(
+      "--mesh", mesh_path,
+      "Mesh file (OBJ, PLY, OFF, STL) or builtin:sphere|box|cylinder|torus|plane");
+  app.add_option("--board", board_text,
+                 "Render a calibration sequence of a printed checkerboard instead: "
+                 "COLSxROWSxSQUARE_M, COLS x ROWS = INNER corners (OpenCV patternSize; a "
+                 "board of 10x7 squares is 9x6), square side in metres, e.g. 9x6x0.025")
+      ->excludes(mesh_option);
+  app.add_option("--views", board_options.num_views, "--board: number of board poses")
+      ->capture_default_str();
+  app.add_option("--pose-seed", board_options.seed, "--board: seed of the random board poses")
+      ->capture_default_str();
   app.add_option("--object-pose", pose_text,
                  "Object rotation (degrees, R = Rz*Ry*Rx) and bounding-box centre (metres) "
                  "in the camera frame: rx,ry,rz,tx,ty,tz")
@@ -65,6 +80,22 @@ int RunSimulate(int argc, char** argv) {
       rig_path.empty() ? DefaultRigCalibration() : ReadRigCalibration(rig_path);
   const PatternOptions patterns =
       pattern_flags.ToOptions(calibration.projector.width, calibration.projector.height);
+  if (!board_text.empty()) {
+    const BoardSpec board = BoardSpecFromString(board_text);
+    board_options.patterns = patterns;
+    board_options.Check();
+    VirtualRig rig(calibration, sensor);
+    cli::Progress progress("rendering board views", board_options.num_views);
+    WriteBoardSequence(out, rig, board, board_options,
+                       [&](int done, int) { progress.Update(done); });
+    spdlog::info("rendered {} views of a {} board ({} frames each) -> {}", board_options.num_views,
+                 board.ToString(),
+                 MakePatternManifest(patterns, calibration.camera.width, calibration.camera.height)
+                     .frames.size(),
+                 out);
+    return 0;
+  }
+  SOPE_CHECK(!mesh_path.empty(), "one of --mesh or --board is required");
   const Rigid3d pose = cli::ParsePose(pose_text, "--object-pose");
   const TriangleMesh mesh = LoadMeshSpec(mesh_path);
   Placement placement;

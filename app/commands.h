@@ -10,5 +10,8 @@ int RunSimulate(int argc, char** argv);
 int RunDecode(int argc, char** argv);
 int RunScan(int argc, char** argv);
 int RunProject(int argc, char** argv);
+int RunCalibrate(int argc, char** argv);
+int RunBuildDb(int argc, char** argv);
+int RunRecognise(int argc, char** argv);
 
 }  // namespace sope

@@ -26,6 +26,9 @@ constexpr Command kCommands[] = {
     {"decode", sope::RunDecode, "decode a frame set into projector correspondence maps"},
     {"scan", sope::RunScan, "decode and triangulate a frame set into a point cloud"},
     {"project", sope::RunProject, "show the pattern sequence on the projector, stepping with keys"},
+    {"calibrate", sope::RunCalibrate, "calibrate camera and projector from checkerboard frame sets"},
+    {"build-db", sope::RunBuildDb, "build a recognition database from a models directory"},
+    {"recognise", sope::RunRecognise, "recognise an object in a point cloud and estimate its pose"},
 };
 
 void PrintUsage(std::FILE* stream) {

@@ -1,0 +1,825 @@
+#include "recogniser/database.h"
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <type_traits>
+
+#include <nlohmann/json.hpp>
+
+#include "core/error.h"
+#include "core/file_util.h"
+#include "recogniser/crc32c.h"
+
+static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__,
+              "the .sopedb reader/writer assumes a little-endian host");
+
+namespace sope {
+namespace {
+
+using json = nlohmann::json;
+
+constexpr char kMagic[8] = {'S', 'O', 'P', 'E', 'D', 'B', '\r', '\n'};
+constexpr size_t kHeaderBytes = 64;
+constexpr size_t kSectionNameBytes = 16;
+constexpr size_t kSectionEntryBytes = 40;
+constexpr uint64_t kSectionAlignment = 4096;
+constexpr float kNormalSteps = 32767.0f;
+
+struct HeaderOnDisk {
+  char magic[8];
+  uint32_t version;
+  uint32_t header_bytes;  // header + section table
+  uint32_t section_count;
+  uint32_t header_crc;
+  uint64_t file_size;
+  uint8_t reserved[32];
+};
+static_assert(sizeof(HeaderOnDisk) == kHeaderBytes, "header layout");
+
+struct SectionEntryOnDisk {
+  char name[kSectionNameBytes];
+  uint64_t offset;
+  uint64_t size;
+  uint32_t crc;
+  uint32_t reserved;
+};
+static_assert(sizeof(SectionEntryOnDisk) == kSectionEntryBytes, "section entry layout");
+
+struct ViewRecordOnDisk {
+  int32_t model;
+  int32_t cloud_points;
+  double theta, phi, distance;
+  double rotation[9];  // row-major
+  double translation[3];
+  float centroid[3];
+  float radius;
+  float cloud_spacing;
+  int32_t preprocessed_points;
+};
+static_assert(sizeof(ViewRecordOnDisk) == 152, "view record layout");
+static_assert(std::is_trivially_copyable<ViewRecordOnDisk>::value, "view record is POD");
+
+struct CloudPointOnDisk {
+  int16_t position[3];
+  int16_t normal[3];
+};
+static_assert(sizeof(CloudPointOnDisk) == 12, "cloud point layout");
+
+// Sections in file order; the mapped ones are the last three.
+constexpr const char* kSectionNames[] = {"metadata", "views",  "hasher", "standard",
+                                         "codes",    "coarse", "fine",   "clouds"};
+constexpr int kNumSections = 8;
+constexpr int kFirstMappedSection = 5;
+enum SectionId { kMetadata, kViews, kHasher, kStandard, kCodes, kCoarse, kFine, kClouds };
+
+uint64_t AlignUp(uint64_t value, uint64_t alignment) {
+  return (value + alignment - 1) / alignment * alignment;
+}
+
+// ---- options ↔ JSON ---------------------------------------------------------------------
+
+json PreprocessToJson(const PreprocessOptions& o) {
+  return {{"min_range", o.min_range},
+          {"max_range", o.max_range},
+          {"outlier_neighbours", o.outlier_neighbours},
+          {"outlier_stddev", o.outlier_stddev},
+          {"voxel_leaf", o.voxel_leaf},
+          {"normal_neighbours", o.normal_neighbours},
+          {"normalisation", ToString(o.normalisation)},
+          {"median_fraction", o.median_fraction},
+          {"min_points", o.min_points}};
+}
+
+PreprocessOptions PreprocessFromJson(const json& j) {
+  PreprocessOptions o;
+  o.min_range = j.value("min_range", o.min_range);
+  o.max_range = j.value("max_range", o.max_range);
+  o.outlier_neighbours = j.value("outlier_neighbours", o.outlier_neighbours);
+  o.outlier_stddev = j.value("outlier_stddev", o.outlier_stddev);
+  o.voxel_leaf = j.value("voxel_leaf", o.voxel_leaf);
+  o.normal_neighbours = j.value("normal_neighbours", o.normal_neighbours);
+  if (j.contains("normalisation")) {
+    o.normalisation = ScaleNormalisationFromString(j.at("normalisation").get<std::string>());
+  }
+  o.median_fraction = j.value("median_fraction", o.median_fraction);
+  o.min_points = j.value("min_points", o.min_points);
+  return o;
+}
+
+json FeaturesToJson(const FeatureOptions& o) {
+  return {{"kde_bandwidth", o.kde_bandwidth},
+          {"kde_samples", o.kde_samples},
+          {"direction_components_xyz", o.direction_components_xyz},
+          {"bezier_order_u", o.bezier_order_u},
+          {"bezier_order_v", o.bezier_order_v},
+          {"bezier_iterations", o.bezier_iterations},
+          {"metric_size", o.metric_size},
+          {"fine", ToString(o.fine)}};
+}
+
+FeatureOptions FeaturesFromJson(const json& j) {
+  FeatureOptions o;
+  o.kde_bandwidth = j.value("kde_bandwidth", o.kde_bandwidth);
+  o.kde_samples = j.value("kde_samples", o.kde_samples);
+  o.direction_components_xyz = j.value("direction_components_xyz", o.direction_components_xyz);
+  o.bezier_order_u = j.value("bezier_order_u", o.bezier_order_u);
+  o.bezier_order_v = j.value("bezier_order_v", o.bezier_order_v);
+  o.bezier_iterations = j.value("bezier_iterations", o.bezier_iterations);
+  o.metric_size = j.value("metric_size", o.metric_size);
+  if (j.contains("fine")) o.fine = FineDescriptorFromString(j.at("fine").get<std::string>());
+  return o;
+}
+
+json HashToJson(const HashOptions& o) {
+  return {{"method", ToString(o.method)},
+          {"bits", o.bits},
+          {"seed", o.seed},
+          {"max_training_samples", o.max_training_samples},
+          {"lsh", {{"threshold_spread", o.lsh.threshold_spread}}},
+          {"mlh",
+           {{"margin_fraction", o.mlh.margin_fraction},
+            {"lambda", o.mlh.lambda},
+            {"learning_rate", o.mlh.learning_rate},
+            {"momentum", o.mlh.momentum},
+            {"weight_decay", o.mlh.weight_decay},
+            {"iterations", o.mlh.iterations},
+            {"pairs_per_batch", o.mlh.pairs_per_batch},
+            {"training_points", o.mlh.training_points},
+            {"neighbours", o.mlh.neighbours}}},
+          {"bre",
+           {{"kernel", ToString(o.bre.kernel)},
+            {"bandwidth_scale", o.bre.bandwidth_scale},
+            {"anchors", o.bre.anchors},
+            {"training_points", o.bre.training_points},
+            {"neighbours", o.bre.neighbours},
+            {"updates_per_bit", o.bre.updates_per_bit}}},
+          {"itq", {{"iterations", o.itq.iterations}}}};
+}
+
+HashOptions HashFromJson(const json& j) {
+  HashOptions o;
+  if (j.contains("method")) o.method = HashMethodFromString(j.at("method").get<std::string>());
+  o.bits = j.value("bits", o.bits);
+  o.seed = j.value("seed", o.seed);
+  o.max_training_samples = j.value("max_training_samples", o.max_training_samples);
+  if (j.contains("lsh")) {
+    o.lsh.threshold_spread = j["lsh"].value("threshold_spread", o.lsh.threshold_spread);
+  }
+  if (j.contains("mlh")) {
+    const json& m = j["mlh"];
+    o.mlh.margin_fraction = m.value("margin_fraction", o.mlh.margin_fraction);
+    o.mlh.lambda = m.value("lambda", o.mlh.lambda);
+    o.mlh.learning_rate = m.value("learning_rate", o.mlh.learning_rate);
+    o.mlh.momentum = m.value("momentum", o.mlh.momentum);
+    o.mlh.weight_decay = m.value("weight_decay", o.mlh.weight_decay);
+    o.mlh.iterations = m.value("iterations", o.mlh.iterations);
+    o.mlh.pairs_per_batch = m.value("pairs_per_batch", o.mlh.pairs_per_batch);
+    o.mlh.training_points = m.value("training_points", o.mlh.training_points);
+    o.mlh.neighbours = m.value("neighbours", o.mlh.neighbours);
+  }
+  if (j.contains("bre")) {
+    const json& b = j["bre"];
+    if (b.contains("kernel")) o.bre.kernel = BreKernelFromString(b["kernel"].get<std::string>());
+    o.bre.bandwidth_scale = b.value("bandwidth_scale", o.bre.bandwidth_scale);
+    o.bre.anchors = b.value("anchors", o.bre.anchors);
+    o.bre.training_points = b.value("training_points", o.bre.training_points);
+    o.bre.neighbours = b.value("neighbours", o.bre.neighbours);
+    o.bre.updates_per_bit = b.value("updates_per_bit", o.bre.updates_per_bit);
+  }
+  if (j.contains("itq")) o.itq.iterations = j["itq"].value("iterations", o.itq.iterations);
+  return o;
+}
+
+json OptionsToJsonObject(const DatabaseOptions& o) {
+  return {{"layout", ToString(o.layout)},
+          {"views_per_model", o.views_per_model},
+          {"render",
+           {{"width", o.render.width},
+            {"height", o.render.height},
+            {"horizontal_fov", o.render.horizontal_fov},
+            {"distance", o.render.distance},
+            {"fit_margin", o.render.fit_margin}}},
+          {"size",
+           {{"min_plausible_diagonal", o.size.min_plausible_diagonal},
+            {"max_plausible_diagonal", o.size.max_plausible_diagonal},
+            {"target_diagonal", o.size.target_diagonal}}},
+          {"preprocess", PreprocessToJson(o.preprocess)},
+          {"features", FeaturesToJson(o.features)},
+          {"hash", HashToJson(o.hash)},
+          {"view_cloud_points", o.view_cloud_points},
+          {"equal_block_weights", o.equal_block_weights},
+          {"hash_fine_weight", o.hash_fine_weight}};
+}
+
+DatabaseOptions OptionsFromJsonObject(const json& j) {
+  DatabaseOptions o;
+  if (j.contains("layout")) o.layout = ViewpointLayoutFromString(j["layout"].get<std::string>());
+  o.views_per_model = j.value("views_per_model", o.views_per_model);
+  if (j.contains("render")) {
+    const json& r = j["render"];
+    o.render.width = r.value("width", o.render.width);
+    o.render.height = r.value("height", o.render.height);
+    o.render.horizontal_fov = r.value("horizontal_fov", o.render.horizontal_fov);
+    o.render.distance = r.value("distance", o.render.distance);
+    o.render.fit_margin = r.value("fit_margin", o.render.fit_margin);
+  }
+  if (j.contains("size")) {
+    const json& s = j["size"];
+    o.size.min_plausible_diagonal = s.value("min_plausible_diagonal", o.size.min_plausible_diagonal);
+    o.size.max_plausible_diagonal = s.value("max_plausible_diagonal", o.size.max_plausible_diagonal);
+    o.size.target_diagonal = s.value("target_diagonal", o.size.target_diagonal);
+  }
+  if (j.contains("preprocess")) o.preprocess = PreprocessFromJson(j["preprocess"]);
+  if (j.contains("features")) o.features = FeaturesFromJson(j["features"]);
+  if (j.contains("hash")) o.hash = HashFromJson(j["hash"]);
+  o.view_cloud_points = j.value("view_cloud_points", o.view_cloud_points);
+  o.equal_block_weights = j.value("equal_block_weights", o.equal_block_weights);
+  o.hash_fine_weight = j.value("hash_fine_weight", o.hash_fine_weight);
+  return o;
+}
+
+json Vec3ToJson(const Eigen::Vector3d& v) { return json::array({v.x(), v.y(), v.z()}); }
+Eigen::Vector3d Vec3FromJson(const json& j) {
+  return Eigen::Vector3d(j.at(0).get<double>(), j.at(1).get<double>(), j.at(2).get<double>());
+}
+
+// ---- file mapping -------------------------------------------------------------------------
+
+struct MappedFile {
+  int fd = -1;
+  const uint8_t* data = nullptr;
+  uint64_t size = 0;
+  ~MappedFile() {
+    if (data != nullptr && size > 0) ::munmap(const_cast<uint8_t*>(data), size);
+    if (fd >= 0) ::close(fd);
+  }
+};
+
+}  // namespace
+
+// ---- options -------------------------------------------------------------------------------
+
+void ViewRenderOptions::Check() const {
+  SOPE_CHECK(width >= 16 && height >= 16, "view rendering: image size {}x{} is too small (≥ 16)",
+             width, height);
+  SOPE_CHECK(horizontal_fov > 0.05 && horizontal_fov < 3.0,
+             "view rendering: horizontal_fov must be in (0.05, 3) rad, got {}", horizontal_fov);
+  SOPE_CHECK(distance > 0.0 && std::isfinite(distance),
+             "view rendering: distance must be > 0 m, got {}", distance);
+  SOPE_CHECK(fit_margin >= 1.0, "view rendering: fit_margin must be ≥ 1, got {}", fit_margin);
+}
+
+void SizeNormalisationOptions::Check() const {
+  SOPE_CHECK(min_plausible_diagonal > 0.0 && max_plausible_diagonal > min_plausible_diagonal,
+             "size normalisation: need 0 < min_plausible_diagonal < max_plausible_diagonal, "
+             "got {} and {}",
+             min_plausible_diagonal, max_plausible_diagonal);
+  SOPE_CHECK(target_diagonal > 0.0, "size normalisation: target_diagonal must be > 0 m, got {}",
+             target_diagonal);
+}
+
+DatabaseOptions DatabaseOptions::Preset(const std::string& name) {
+  DatabaseOptions options;
+  if (name == "sope") return options;
+  if (name == "thesis") {
+    options.layout = ViewpointLayout::kThesis18;
+    options.views_per_model = 18;
+    options.features = FeatureOptions::ThesisPreset();
+    options.hash.method = HashMethod::kMinimalLoss;
+    options.equal_block_weights = false;
+    options.hash_fine_weight = 0.0;
+    return options;
+  }
+  SOPE_THROW("unknown preset '{}' (expected sope or thesis)", name);
+}
+
+void DatabaseOptions::Check() const {
+  if (layout == ViewpointLayout::kThesis18) {
+    SOPE_CHECK(views_per_model == 18, "the thesis layout has 18 views per model, got {}",
+               views_per_model);
+  } else {
+    SOPE_CHECK(views_per_model >= 1 && views_per_model <= 100000,
+               "views per model must be in [1, 100000], got {}", views_per_model);
+  }
+  render.Check();
+  size.Check();
+  preprocess.Check();
+  features.Check();
+  hash.Check();
+  SOPE_CHECK(view_cloud_points >= 16 && view_cloud_points <= 4096,
+             "view_cloud_points must be in [16, 4096], got {}", view_cloud_points);
+  SOPE_CHECK(hash_fine_weight >= 0.0 && std::isfinite(hash_fine_weight),
+             "hash_fine_weight must be ≥ 0, got {}", hash_fine_weight);
+}
+
+Eigen::VectorXf HashInputVector(const Eigen::VectorXf& standardised_coarse,
+                                const Eigen::VectorXf& fine, const Eigen::VectorXf& fine_mean,
+                                float fine_hash_scale) {
+  if (fine_hash_scale <= 0.0f) return standardised_coarse;
+  Eigen::VectorXf input(standardised_coarse.size() + fine.size());
+  input << standardised_coarse, fine_hash_scale * (fine - fine_mean);
+  return input;
+}
+
+std::string DatabaseOptionsToJson(const DatabaseOptions& options) {
+  return OptionsToJsonObject(options).dump();
+}
+
+DatabaseOptions DatabaseOptionsFromJson(const std::string& text) {
+  try {
+    return OptionsFromJsonObject(json::parse(text));
+  } catch (const json::exception& e) {
+    SOPE_THROW("database options: {}", e.what());
+  }
+}
+
+void DatabaseData::Check() const {
+  const size_t num_views = views.size();
+  SOPE_CHECK(!models.empty() && num_views > 0, "database: no models or no views");
+  SOPE_CHECK(coarse.rows() == static_cast<Eigen::Index>(num_views) &&
+                 fine.rows() == static_cast<Eigen::Index>(num_views),
+             "database: {} views but {} coarse and {} fine rows", num_views, coarse.rows(),
+             fine.rows());
+  SOPE_CHECK(coarse.cols() > 0 && fine.cols() > 0, "database: empty feature vectors");
+  SOPE_CHECK(coarse_mean.size() == coarse.cols() && coarse_scale.size() == coarse.cols(),
+             "database: standardisation has {} / {} values for {} coarse dimensions",
+             coarse_mean.size(), coarse_scale.size(), coarse.cols());
+  SOPE_CHECK(fine_mean.size() == fine.cols() && fine_hash_scale >= 0.0f,
+             "database: fine mean has {} values for {} fine dimensions", fine_mean.size(),
+             fine.cols());
+  const Eigen::Index hash_dims = coarse.cols() + (fine_hash_scale > 0.0f ? fine.cols() : 0);
+  SOPE_CHECK(hasher.trained() && hasher.input_dims() == hash_dims,
+             "database: hasher untrained or for {} dimensions instead of {}",
+             hasher.trained() ? hasher.input_dims() : 0, hash_dims);
+  codes.Check();
+  SOPE_CHECK(codes.size() == static_cast<int64_t>(num_views) && codes.bits == hasher.bits(),
+             "database: {} codes of {} bits for {} views and a {}-bit hasher", codes.size(),
+             codes.bits, num_views, hasher.bits());
+  SOPE_CHECK(view_clouds.size() == num_views, "database: {} view clouds for {} views",
+             view_clouds.size(), num_views);
+  int expected_first = 0;
+  for (size_t m = 0; m < models.size(); ++m) {
+    const ModelRecord& model = models[m];
+    SOPE_CHECK(model.class_index >= 0 && model.class_index < static_cast<int>(classes.size()) &&
+                   classes[model.class_index] == model.class_name,
+               "database: model {} has an invalid class", model.name);
+    SOPE_CHECK(model.first_view == expected_first && model.num_views >= 1,
+               "database: model {} views [{}, +{}) are not contiguous", model.name,
+               model.first_view, model.num_views);
+    SOPE_CHECK(model.cloud_quantum > 0.0 && model.bounding_radius > 0.0,
+               "database: model {} has no size", model.name);
+    expected_first += model.num_views;
+  }
+  SOPE_CHECK(expected_first == static_cast<int>(num_views),
+             "database: models cover {} views, {} stored", expected_first, num_views);
+  for (size_t v = 0; v < num_views; ++v) {
+    const ViewRecord& view = views[v];
+    SOPE_CHECK(view.model >= 0 && view.model < static_cast<int>(models.size()) &&
+                   static_cast<int>(v) >= models[view.model].first_view &&
+                   static_cast<int>(v) < models[view.model].first_view + models[view.model].num_views,
+               "database: view {} names model {}", v, view.model);
+    const PointCloud& cloud = view_clouds[v];
+    SOPE_CHECK(cloud.size() == static_cast<size_t>(view.cloud_points) &&
+                   cloud.size() <= static_cast<size_t>(options.view_cloud_points) &&
+                   cloud.normals.size() == cloud.size(),
+               "database: view {} cloud has {} points ({} normals), record says {}, limit {}", v,
+               cloud.size(), cloud.normals.size(), view.cloud_points, options.view_cloud_points);
+  }
+}
+
+// ---- writing -------------------------------------------------------------------------------
+
+void WriteDatabase(const std::string& path, const DatabaseData& data) {
+  data.Check();
+  const int num_views = static_cast<int>(data.views.size());
+  std::vector<std::string> sections(kNumSections);
+
+  // metadata
+  json meta;
+  meta["format"] = "sope-db";
+  meta["version"] = kDatabaseFormatVersion;
+  meta["options"] = OptionsToJsonObject(data.options);
+  meta["classes"] = data.classes;
+  json models = json::array();
+  for (const ModelRecord& m : data.models) {
+    models.push_back({{"name", m.name},
+                      {"class", m.class_name},
+                      {"class_index", m.class_index},
+                      {"source", m.source_path},
+                      {"scale", m.scale},
+                      {"center", Vec3ToJson(m.center)},
+                      {"diameter", m.diameter},
+                      {"bounding_radius", m.bounding_radius},
+                      {"cloud_quantum", m.cloud_quantum},
+                      {"first_view", m.first_view},
+                      {"num_views", m.num_views}});
+  }
+  meta["models"] = models;
+  meta["num_views"] = num_views;
+  meta["coarse_dim"] = data.coarse.cols();
+  meta["fine_dim"] = data.fine.cols();
+  json layout = json::array();
+  for (const auto& block : CoarseLayout(data.options.features)) {
+    layout.push_back({block.first, block.second});
+  }
+  meta["coarse_layout"] = layout;
+  meta["distance_scales"] = {{"fine", data.distance_scales.fine},
+                             {"coarse", data.distance_scales.coarse},
+                             {"size", data.distance_scales.size}};
+  sections[kMetadata] = meta.dump(1);
+
+  // views
+  std::string& views = sections[kViews];
+  views.resize(sizeof(ViewRecordOnDisk) * num_views);
+  for (int v = 0; v < num_views; ++v) {
+    const ViewRecord& view = data.views[v];
+    ViewRecordOnDisk record{};
+    record.model = view.model;
+    record.cloud_points = view.cloud_points;
+    record.theta = view.viewpoint.theta;
+    record.phi = view.viewpoint.phi;
+    record.distance = view.distance;
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) record.rotation[3 * r + c] = view.cam_from_model.rotation(r, c);
+      record.translation[r] = view.cam_from_model.translation[r];
+      record.centroid[r] = view.centroid_in_model[r];
+    }
+    record.radius = view.radius;
+    record.cloud_spacing = view.cloud_spacing;
+    record.preprocessed_points = view.preprocessed_points;
+    std::memcpy(&views[sizeof(record) * v], &record, sizeof(record));
+  }
+
+  // hasher
+  const std::vector<uint8_t> hasher = data.hasher.Serialize();
+  sections[kHasher].assign(reinterpret_cast<const char*>(hasher.data()), hasher.size());
+
+  // standardisation
+  const int coarse_dim = static_cast<int>(data.coarse.cols());
+  const int fine_dim = static_cast<int>(data.fine.cols());
+  std::string& standard = sections[kStandard];
+  standard.resize(sizeof(float) * (2 * coarse_dim + fine_dim + 1));
+  std::memcpy(&standard[0], data.coarse_mean.data(), sizeof(float) * coarse_dim);
+  std::memcpy(&standard[sizeof(float) * coarse_dim], data.coarse_scale.data(),
+              sizeof(float) * coarse_dim);
+  std::memcpy(&standard[sizeof(float) * 2 * coarse_dim], data.fine_mean.data(),
+              sizeof(float) * fine_dim);
+  std::memcpy(&standard[sizeof(float) * (2 * coarse_dim + fine_dim)], &data.fine_hash_scale,
+              sizeof(float));
+
+  // codes, coarse, fine
+  sections[kCodes].assign(reinterpret_cast<const char*>(data.codes.words.data()),
+                          data.codes.words.size() * sizeof(uint64_t));
+  sections[kCoarse].assign(reinterpret_cast<const char*>(data.coarse.data()),
+                           sizeof(float) * data.coarse.size());
+  sections[kFine].assign(reinterpret_cast<const char*>(data.fine.data()),
+                         sizeof(float) * data.fine.size());
+
+  // clouds
+  const int stride = data.options.view_cloud_points;
+  std::string& clouds = sections[kClouds];
+  clouds.assign(sizeof(CloudPointOnDisk) * stride * static_cast<size_t>(num_views), '\0');
+  for (int v = 0; v < num_views; ++v) {
+    const ModelRecord& model = data.models[data.views[v].model];
+    const PointCloud& cloud = data.view_clouds[v];
+    CloudPointOnDisk* out =
+        reinterpret_cast<CloudPointOnDisk*>(&clouds[sizeof(CloudPointOnDisk) * stride * v]);
+    for (size_t i = 0; i < cloud.size(); ++i) {
+      const Eigen::Vector3d offset =
+          (cloud.points[i].cast<double>() - model.center) / model.cloud_quantum;
+      const Eigen::Vector3f normal = cloud.normals[i].normalized();
+      for (int k = 0; k < 3; ++k) {
+        SOPE_CHECK(std::abs(offset[k]) <= 32767.0,
+                   "database: view {} point {} lies outside model {}'s bounding radius", v, i,
+                   model.name);
+        out[i].position[k] = static_cast<int16_t>(std::lround(offset[k]));
+        out[i].normal[k] = static_cast<int16_t>(std::lround(normal[k] * kNormalSteps));
+      }
+    }
+  }
+
+  // layout
+  const uint64_t table_end = kHeaderBytes + kSectionEntryBytes * kNumSections;
+  std::vector<SectionEntryOnDisk> entries(kNumSections);
+  uint64_t offset = AlignUp(table_end, kSectionAlignment);
+  for (int s = 0; s < kNumSections; ++s) {
+    SectionEntryOnDisk& entry = entries[s];
+    std::memset(&entry, 0, sizeof(entry));
+    std::strncpy(entry.name, kSectionNames[s], kSectionNameBytes);
+    entry.offset = offset;
+    entry.size = sections[s].size();
+    entry.crc = Crc32c(sections[s].data(), sections[s].size());
+    offset = AlignUp(offset + entry.size, kSectionAlignment);
+  }
+  const uint64_t file_size = offset;
+  HeaderOnDisk header{};
+  std::memcpy(header.magic, kMagic, sizeof(kMagic));
+  header.version = kDatabaseFormatVersion;
+  header.header_bytes = static_cast<uint32_t>(table_end);
+  header.section_count = kNumSections;
+  header.header_crc = 0;
+  header.file_size = file_size;
+
+  std::string file(file_size, '\0');
+  std::memcpy(&file[0], &header, sizeof(header));
+  std::memcpy(&file[kHeaderBytes], entries.data(), kSectionEntryBytes * kNumSections);
+  header.header_crc = Crc32c(file.data(), table_end);
+  std::memcpy(&file[0], &header, sizeof(header));
+  for (int s = 0; s < kNumSections; ++s) {
+    if (!sections[s].empty()) {
+      std::memcpy(&file[entries[s].offset], sections[s].data(), sections[s].size());
+    }
+  }
+  WriteFileAtomic(path, file);
+}
+
+// ---- reading -------------------------------------------------------------------------------
+
+struct Database::Impl {
+  std::string path;
+  MappedFile file;
+  DatabaseOptions options;
+  std::vector<std::string> classes;
+  std::vector<ModelRecord> models;
+  std::vector<ViewRecord> views;
+  DistanceScales distance_scales;
+  Hasher hasher;
+  BinaryCodes codes;
+  std::unique_ptr<HammingIndex> index;
+  Eigen::VectorXf coarse_mean, coarse_scale, fine_mean;
+  float fine_hash_scale = 0.0f;
+  int coarse_dim = 0, fine_dim = 0;
+  const float* coarse = nullptr;
+  const float* fine = nullptr;
+  const CloudPointOnDisk* clouds = nullptr;
+  int cloud_stride = 0;
+};
+
+Database::Database(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Database::~Database() = default;
+
+std::unique_ptr<Database> Database::Open(const std::string& path,
+                                         const DatabaseOpenOptions& options) {
+  auto impl = std::make_unique<Impl>();
+  impl->path = path;
+  MappedFile& file = impl->file;
+  file.fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  SOPE_CHECK(file.fd >= 0, "cannot open database {}: {}", path, std::strerror(errno));
+  struct stat st {};
+  SOPE_CHECK(::fstat(file.fd, &st) == 0, "cannot stat database {}: {}", path,
+             std::strerror(errno));
+  SOPE_CHECK(S_ISREG(st.st_mode), "database {} is not a regular file", path);
+  const uint64_t actual_size = static_cast<uint64_t>(st.st_size);
+  SOPE_CHECK(actual_size >= sizeof(kMagic), "{} is not a sope database (only {} bytes)", path,
+             actual_size);
+  file.data = static_cast<const uint8_t*>(
+      ::mmap(nullptr, actual_size, PROT_READ, MAP_PRIVATE, file.fd, 0));
+  if (file.data == MAP_FAILED) {
+    file.data = nullptr;
+    SOPE_THROW("cannot map database {}: {}", path, std::strerror(errno));
+  }
+  file.size = actual_size;
+  const uint8_t* base = file.data;
+
+  SOPE_CHECK(std::memcmp(base, kMagic, sizeof(kMagic)) == 0,
+             "{} is not a sope database (no SOPEDB signature)", path);
+  SOPE_CHECK(actual_size >= kHeaderBytes,
+             "database {} is truncated: {} bytes, shorter than its header", path, actual_size);
+  HeaderOnDisk header;
+  std::memcpy(&header, base, sizeof(header));
+  SOPE_CHECK(header.version == kDatabaseFormatVersion,
+             "database {} has format version {}, this sope reads version {} (rebuild it with "
+             "sope build-db)",
+             path, header.version, kDatabaseFormatVersion);
+  SOPE_CHECK(header.section_count == kNumSections &&
+                 header.header_bytes == kHeaderBytes + kSectionEntryBytes * kNumSections,
+             "database {} is corrupted: invalid header ({} sections, {} header bytes)", path,
+             header.section_count, header.header_bytes);
+  SOPE_CHECK(actual_size >= header.header_bytes,
+             "database {} is truncated: {} bytes, shorter than its header", path, actual_size);
+  {
+    std::string head(reinterpret_cast<const char*>(base), header.header_bytes);
+    HeaderOnDisk zeroed = header;
+    zeroed.header_crc = 0;
+    std::memcpy(&head[0], &zeroed, sizeof(zeroed));
+    SOPE_CHECK(Crc32c(head.data(), head.size()) == header.header_crc,
+               "database {} is corrupted: header checksum mismatch", path);
+  }
+  SOPE_CHECK(actual_size >= header.file_size,
+             "database {} is truncated: {} of {} bytes (interrupted copy or write?)", path,
+             actual_size, header.file_size);
+  SOPE_CHECK(actual_size == header.file_size,
+             "database {} is corrupted: {} bytes, its header says {}", path, actual_size,
+             header.file_size);
+
+  std::vector<SectionEntryOnDisk> entries(kNumSections);
+  std::memcpy(entries.data(), base + kHeaderBytes, kSectionEntryBytes * kNumSections);
+  for (int s = 0; s < kNumSections; ++s) {
+    const SectionEntryOnDisk& entry = entries[s];
+    SOPE_CHECK(std::strncmp(entry.name, kSectionNames[s], kSectionNameBytes) == 0,
+               "database {} is corrupted: section {} is not '{}'", path, s, kSectionNames[s]);
+    SOPE_CHECK(entry.offset % kSectionAlignment == 0 && entry.offset <= header.file_size &&
+                   entry.size <= header.file_size - entry.offset,
+               "database {} is corrupted: section '{}' lies outside the file", path,
+               kSectionNames[s]);
+    if (s < kFirstMappedSection || options.verify_mapped_sections) {
+      SOPE_CHECK(Crc32c(base + entry.offset, entry.size) == entry.crc,
+                 "database {} is corrupted: checksum mismatch in section '{}'", path,
+                 kSectionNames[s]);
+    }
+  }
+  auto section = [&](int s) { return base + entries[s].offset; };
+  auto section_size = [&](int s) { return entries[s].size; };
+
+  // metadata
+  int num_views = 0;
+  try {
+    const json meta = json::parse(reinterpret_cast<const char*>(section(kMetadata)),
+                                  reinterpret_cast<const char*>(section(kMetadata)) +
+                                      section_size(kMetadata));
+    SOPE_CHECK(meta.value("format", "") == "sope-db",
+               "database {} is corrupted: metadata format is not sope-db", path);
+    impl->options = OptionsFromJsonObject(meta.at("options"));
+    impl->classes = meta.at("classes").get<std::vector<std::string>>();
+    for (const json& m : meta.at("models")) {
+      ModelRecord model;
+      model.name = m.at("name").get<std::string>();
+      model.class_name = m.at("class").get<std::string>();
+      model.class_index = m.at("class_index").get<int>();
+      model.source_path = m.at("source").get<std::string>();
+      model.scale = m.at("scale").get<double>();
+      model.center = Vec3FromJson(m.at("center"));
+      model.diameter = m.at("diameter").get<double>();
+      model.bounding_radius = m.at("bounding_radius").get<double>();
+      model.cloud_quantum = m.at("cloud_quantum").get<double>();
+      model.first_view = m.at("first_view").get<int>();
+      model.num_views = m.at("num_views").get<int>();
+      impl->models.push_back(std::move(model));
+    }
+    num_views = meta.at("num_views").get<int>();
+    impl->coarse_dim = meta.at("coarse_dim").get<int>();
+    impl->fine_dim = meta.at("fine_dim").get<int>();
+    const json& scales = meta.at("distance_scales");
+    impl->distance_scales.fine = scales.at("fine").get<double>();
+    impl->distance_scales.coarse = scales.at("coarse").get<double>();
+    impl->distance_scales.size = scales.at("size").get<double>();
+  } catch (const json::exception& e) {
+    SOPE_THROW("database {} is corrupted: invalid metadata ({})", path, e.what());
+  }
+  const int coarse_dim = impl->coarse_dim, fine_dim = impl->fine_dim;
+  const int stride = impl->options.view_cloud_points;
+  SOPE_CHECK(num_views > 0 && !impl->models.empty() && coarse_dim > 0 && fine_dim > 0,
+             "database {} is corrupted: empty ({} models, {} views)", path, impl->models.size(),
+             num_views);
+  auto expect_size = [&](int s, uint64_t expected) {
+    SOPE_CHECK(section_size(s) == expected,
+               "database {} is corrupted: section '{}' has {} bytes, expected {}", path,
+               kSectionNames[s], section_size(s), expected);
+  };
+  expect_size(kViews, sizeof(ViewRecordOnDisk) * static_cast<uint64_t>(num_views));
+  expect_size(kStandard, sizeof(float) * (2 * static_cast<uint64_t>(coarse_dim) + fine_dim + 1));
+  expect_size(kCoarse, sizeof(float) * static_cast<uint64_t>(coarse_dim) * num_views);
+  expect_size(kFine, sizeof(float) * static_cast<uint64_t>(fine_dim) * num_views);
+  expect_size(kClouds, sizeof(CloudPointOnDisk) * static_cast<uint64_t>(stride) * num_views);
+
+  // views
+  impl->views.resize(num_views);
+  for (int v = 0; v < num_views; ++v) {
+    ViewRecordOnDisk record;
+    std::memcpy(&record, section(kViews) + sizeof(record) * v, sizeof(record));
+    ViewRecord& view = impl->views[v];
+    view.model = record.model;
+    view.cloud_points = record.cloud_points;
+    view.viewpoint.theta = record.theta;
+    view.viewpoint.phi = record.phi;
+    view.distance = record.distance;
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) view.cam_from_model.rotation(r, c) = record.rotation[3 * r + c];
+      view.cam_from_model.translation[r] = record.translation[r];
+      view.centroid_in_model[r] = record.centroid[r];
+    }
+    view.radius = record.radius;
+    view.cloud_spacing = record.cloud_spacing;
+    view.preprocessed_points = record.preprocessed_points;
+    SOPE_CHECK(view.model >= 0 && view.model < static_cast<int>(impl->models.size()) &&
+                   view.cloud_points >= 0 && view.cloud_points <= stride,
+               "database {} is corrupted: view {} is invalid", path, v);
+  }
+  for (const ModelRecord& model : impl->models) {
+    SOPE_CHECK(model.first_view >= 0 && model.num_views >= 0 &&
+                   model.first_view + model.num_views <= num_views && model.class_index >= 0 &&
+                   model.class_index < static_cast<int>(impl->classes.size()) &&
+                   model.cloud_quantum > 0.0,
+               "database {} is corrupted: model {} is invalid", path, model.name);
+  }
+
+  // hasher, standardisation, codes
+  try {
+    impl->hasher = Hasher::Deserialize(section(kHasher), section_size(kHasher));
+  } catch (const Error& e) {
+    SOPE_THROW("database {} is corrupted: {}", path, e.what());
+  }
+  impl->coarse_mean.resize(coarse_dim);
+  impl->coarse_scale.resize(coarse_dim);
+  impl->fine_mean.resize(fine_dim);
+  const uint8_t* standard = section(kStandard);
+  std::memcpy(impl->coarse_mean.data(), standard, sizeof(float) * coarse_dim);
+  std::memcpy(impl->coarse_scale.data(), standard + sizeof(float) * coarse_dim,
+              sizeof(float) * coarse_dim);
+  std::memcpy(impl->fine_mean.data(), standard + sizeof(float) * 2 * coarse_dim,
+              sizeof(float) * fine_dim);
+  std::memcpy(&impl->fine_hash_scale, standard + sizeof(float) * (2 * coarse_dim + fine_dim),
+              sizeof(float));
+  const int hash_dims = coarse_dim + (impl->fine_hash_scale > 0.0f ? fine_dim : 0);
+  SOPE_CHECK(impl->hasher.input_dims() == hash_dims,
+             "database {} is corrupted: hasher for {} dimensions, hashed vectors have {}", path,
+             impl->hasher.input_dims(), hash_dims);
+  const int bits = impl->hasher.bits();
+  expect_size(kCodes, sizeof(uint64_t) * BinaryCodes::WordsPerCode(bits) *
+                          static_cast<uint64_t>(num_views));
+  impl->codes = BinaryCodes(bits, num_views);
+  std::memcpy(impl->codes.words.data(), section(kCodes), section_size(kCodes));
+  try {
+    impl->codes.Check();
+  } catch (const Error& e) {
+    SOPE_THROW("database {} is corrupted: {}", path, e.what());
+  }
+  impl->index = std::make_unique<HammingIndex>(impl->codes);
+
+  impl->coarse = reinterpret_cast<const float*>(section(kCoarse));
+  impl->fine = reinterpret_cast<const float*>(section(kFine));
+  impl->clouds = reinterpret_cast<const CloudPointOnDisk*>(section(kClouds));
+  impl->cloud_stride = stride;
+  return std::unique_ptr<Database>(new Database(std::move(impl)));
+}
+
+const std::string& Database::path() const { return impl_->path; }
+uint64_t Database::file_size() const { return impl_->file.size; }
+const DatabaseOptions& Database::options() const { return impl_->options; }
+const std::vector<std::string>& Database::classes() const { return impl_->classes; }
+const std::vector<ModelRecord>& Database::models() const { return impl_->models; }
+const std::vector<ViewRecord>& Database::views() const { return impl_->views; }
+const DistanceScales& Database::distance_scales() const { return impl_->distance_scales; }
+const Hasher& Database::hasher() const { return impl_->hasher; }
+const HammingIndex& Database::index() const { return *impl_->index; }
+const BinaryCodes& Database::codes() const { return impl_->codes; }
+const Eigen::VectorXf& Database::coarse_mean() const { return impl_->coarse_mean; }
+const Eigen::VectorXf& Database::coarse_scale() const { return impl_->coarse_scale; }
+int Database::coarse_dim() const { return impl_->coarse_dim; }
+int Database::fine_dim() const { return impl_->fine_dim; }
+
+const float* Database::coarse(int view) const {
+  return impl_->coarse + static_cast<size_t>(view) * impl_->coarse_dim;
+}
+
+const float* Database::fine(int view) const {
+  return impl_->fine + static_cast<size_t>(view) * impl_->fine_dim;
+}
+
+void Database::ViewCloud(int view, PointCloud* cloud) const {
+  const ViewRecord& record = impl_->views[view];
+  const ModelRecord& model = impl_->models[record.model];
+  const CloudPointOnDisk* in = impl_->clouds + static_cast<size_t>(view) * impl_->cloud_stride;
+  const Eigen::Vector3f center = model.center.cast<float>();
+  const float quantum = static_cast<float>(model.cloud_quantum);
+  cloud->points.resize(record.cloud_points);
+  cloud->normals.resize(record.cloud_points);
+  cloud->colors.clear();
+  for (int i = 0; i < record.cloud_points; ++i) {
+    cloud->points[i] = center + quantum * Eigen::Vector3f(in[i].position[0], in[i].position[1],
+                                                          in[i].position[2]);
+    cloud->normals[i] =
+        Eigen::Vector3f(in[i].normal[0], in[i].normal[1], in[i].normal[2]).normalized();
+  }
+}
+
+PointCloud Database::ViewCloud(int view) const {
+  PointCloud cloud;
+  ViewCloud(view, &cloud);
+  return cloud;
+}
+
+Eigen::VectorXf Database::HashInput(const Eigen::VectorXf& standardised_coarse,
+                                   const Eigen::VectorXf& fine) const {
+  SOPE_CHECK(standardised_coarse.size() == impl_->coarse_dim && fine.size() == impl_->fine_dim,
+             "Database::HashInput: {} coarse and {} fine values, the database has {} and {}",
+             standardised_coarse.size(), fine.size(), impl_->coarse_dim, impl_->fine_dim);
+  return HashInputVector(standardised_coarse, fine, impl_->fine_mean, impl_->fine_hash_scale);
+}
+
+Eigen::VectorXf Database::Standardise(const Eigen::VectorXf& coarse) const {
+  SOPE_CHECK(coarse.size() == impl_->coarse_dim,
+             "Database::Standardise: {} values, the database's coarse vectors have {}",
+             coarse.size(), impl_->coarse_dim);
+  return ((coarse - impl_->coarse_mean).array() / impl_->coarse_scale.array()).matrix();
+}
+
+}  // namespace sope

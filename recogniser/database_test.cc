@@ -1,0 +1,339 @@
+#include "recogniser/database.h"
+
+#include <cstring>
+#include <fstream>
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "core/error.h"
+#include "core/file_util.h"
+#include "recogniser/crc32c.h"
+#include "tests/test_support.h"
+
+namespace sope {
+namespace {
+
+TEST(Crc32c, KnownValuesAndHardwareAgreesWithTable) {
+  const char* check = "123456789";
+  EXPECT_EQ(Crc32c(check, 9), 0xE3069283u);
+  EXPECT_EQ(internal::Crc32cPortable(check, 9, 0), 0xE3069283u);
+  EXPECT_EQ(Crc32c("", 0), 0u);
+  // 32 zero bytes (RFC 3720 B.4).
+  const std::vector<uint8_t> zeros(32, 0);
+  EXPECT_EQ(Crc32c(zeros.data(), zeros.size()), 0x8A9136AAu);
+  std::mt19937 rng(7);
+  std::vector<uint8_t> buffer(5000);
+  for (uint8_t& b : buffer) b = static_cast<uint8_t>(rng());
+  for (size_t offset : {0, 1, 3, 7}) {
+    for (size_t size : {0, 1, 7, 8, 31, 32, 33, 1000, 4990}) {
+      EXPECT_EQ(Crc32c(buffer.data() + offset, size),
+                internal::Crc32cPortable(buffer.data() + offset, size, 0))
+          << offset << " " << size;
+    }
+  }
+  // Incremental = whole.
+  const uint32_t whole = Crc32c(buffer.data(), buffer.size());
+  EXPECT_EQ(Crc32c(buffer.data() + 1234, buffer.size() - 1234, Crc32c(buffer.data(), 1234)), whole);
+}
+
+// A small database with random contents (no rendering): checks the file, not the features.
+DatabaseData MakeSyntheticData(uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<float> normal(0.0f, 1.0f);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  DatabaseData data;
+  data.options.view_cloud_points = 40;
+  data.options.views_per_model = 7;
+  data.classes = {"bowl", "mug"};
+  const int num_models = 3, coarse_dim = 12, fine_dim = 20;
+  for (int m = 0; m < num_models; ++m) {
+    ModelRecord model;
+    model.name = "model_" + std::to_string(m);
+    model.class_index = m == 0 ? 0 : 1;
+    model.class_name = data.classes[model.class_index];
+    model.source_path = "/models/" + model.class_name + "/" + model.name + ".obj";
+    model.scale = m == 2 ? 0.031 : 1.0;
+    model.center = Eigen::Vector3d(0.01 * m, -0.02, 0.05);
+    model.bounding_radius = 0.08 + 0.02 * m;
+    model.diameter = 1.9 * model.bounding_radius;
+    model.cloud_quantum = model.bounding_radius / 32000.0;
+    model.first_view = static_cast<int>(data.views.size());
+    model.num_views = 7;
+    for (int v = 0; v < model.num_views; ++v) {
+      ViewRecord view;
+      view.model = m;
+      view.viewpoint = Viewpoint{uniform(rng) * 3.14, uniform(rng) * 6.28};
+      view.distance = 0.6;
+      view.cam_from_model = CameraPoseForViewpoint(view.viewpoint, 0.6, model.center);
+      view.centroid_in_model = model.center.cast<float>() + Eigen::Vector3f(0.01f, 0.0f, -0.01f);
+      view.radius = 0.05f + 0.01f * v;
+      PointCloud cloud;
+      const int points = 10 + v * 4;
+      for (int i = 0; i < points; ++i) {
+        Eigen::Vector3f direction(normal(rng), normal(rng), normal(rng));
+        direction.normalize();
+        cloud.points.push_back(model.center.cast<float>() +
+                               static_cast<float>(model.bounding_radius * uniform(rng)) * direction);
+        Eigen::Vector3f n(normal(rng), normal(rng), normal(rng));
+        cloud.normals.push_back(n.normalized());
+      }
+      view.cloud_points = points;
+      view.cloud_spacing = 0.01f * (v + 1);
+      view.preprocessed_points = 1000 + v;
+      data.views.push_back(view);
+      data.view_clouds.push_back(cloud);
+    }
+    data.models.push_back(model);
+  }
+  const int n = static_cast<int>(data.views.size());
+  data.coarse.resize(n, coarse_dim);
+  data.fine.resize(n, fine_dim);
+  for (int v = 0; v < n; ++v) {
+    for (int d = 0; d < coarse_dim; ++d) data.coarse(v, d) = normal(rng);
+    for (int d = 0; d < fine_dim; ++d) data.fine(v, d) = static_cast<float>(uniform(rng));
+  }
+  data.coarse_mean = Eigen::VectorXf::Random(coarse_dim);
+  data.coarse_scale = Eigen::VectorXf::Constant(coarse_dim, 1.5f);
+  data.fine_mean = Eigen::VectorXf::Constant(fine_dim, 0.5f);
+  data.fine_hash_scale = 2.0f;
+  Eigen::MatrixXf hashed(n, coarse_dim + fine_dim);
+  for (int v = 0; v < n; ++v) {
+    hashed.row(v) = HashInputVector(data.coarse.row(v).transpose(), data.fine.row(v).transpose(),
+                                    data.fine_mean, data.fine_hash_scale)
+                        .transpose();
+  }
+  HashOptions hash;
+  hash.bits = 64;
+  data.hasher = Hasher::Train(hashed, hash);
+  data.codes = data.hasher.Encode(hashed);
+  data.distance_scales = DistanceScales{0.4, 3.0, 0.25};
+  return data;
+}
+
+std::string ReadBytes(const std::string& path) { return ReadFileToString(path, "file"); }
+
+void WriteBytes(const std::string& path, const std::string& bytes) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+}
+
+// The error Open throws for `path`, or "" when it opens.
+std::string OpenError(const std::string& path, const DatabaseOpenOptions& options = {}) {
+  try {
+    Database::Open(path, options);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// Offset of a named section's data, from the table in the header.
+uint64_t SectionOffset(const std::string& bytes, const std::string& name) {
+  for (int s = 0; s < 8; ++s) {
+    const char* entry = bytes.data() + 64 + 40 * s;
+    if (std::strncmp(entry, name.c_str(), 16) == 0) {
+      uint64_t offset;
+      std::memcpy(&offset, entry + 16, 8);
+      return offset;
+    }
+  }
+  ADD_FAILURE() << "no section " << name;
+  return 0;
+}
+
+TEST(Database, RoundTripEqualsWhatWasWritten) {
+  testing::ScratchDir scratch;
+  const DatabaseData data = MakeSyntheticData(1);
+  const std::string path = scratch.File("small.sopedb");
+  WriteDatabase(path, data);
+  const std::unique_ptr<Database> db = Database::Open(path);
+
+  EXPECT_EQ(DatabaseOptionsToJson(db->options()), DatabaseOptionsToJson(data.options));
+  EXPECT_EQ(db->classes(), data.classes);
+  ASSERT_EQ(db->num_models(), 3);
+  for (int m = 0; m < 3; ++m) {
+    const ModelRecord& a = data.models[m];
+    const ModelRecord& b = db->model(m);
+    EXPECT_EQ(a.name, b.name);
+    EXPECT_EQ(a.class_name, b.class_name);
+    EXPECT_EQ(a.class_index, b.class_index);
+    EXPECT_EQ(a.source_path, b.source_path);
+    EXPECT_EQ(a.scale, b.scale);
+    EXPECT_EQ(a.center, b.center);
+    EXPECT_EQ(a.diameter, b.diameter);
+    EXPECT_EQ(a.bounding_radius, b.bounding_radius);
+    EXPECT_EQ(a.cloud_quantum, b.cloud_quantum);
+    EXPECT_EQ(a.first_view, b.first_view);
+    EXPECT_EQ(a.num_views, b.num_views);
+  }
+  ASSERT_EQ(db->num_views(), 21);
+  for (int v = 0; v < db->num_views(); ++v) {
+    const ViewRecord& a = data.views[v];
+    const ViewRecord& b = db->view(v);
+    EXPECT_EQ(a.model, b.model);
+    EXPECT_EQ(a.viewpoint.theta, b.viewpoint.theta);
+    EXPECT_EQ(a.viewpoint.phi, b.viewpoint.phi);
+    EXPECT_EQ(a.distance, b.distance);
+    EXPECT_EQ(a.cam_from_model.rotation, b.cam_from_model.rotation);
+    EXPECT_EQ(a.cam_from_model.translation, b.cam_from_model.translation);
+    EXPECT_EQ(a.centroid_in_model, b.centroid_in_model);
+    EXPECT_EQ(a.radius, b.radius);
+    EXPECT_EQ(a.cloud_points, b.cloud_points);
+    EXPECT_EQ(a.cloud_spacing, b.cloud_spacing);
+    EXPECT_EQ(a.preprocessed_points, b.preprocessed_points);
+    // Memory-mapped features equal bit for bit.
+    EXPECT_EQ(std::memcmp(db->coarse(v), data.coarse.row(v).data(), sizeof(float) * 12), 0);
+    EXPECT_EQ(std::memcmp(db->fine(v), data.fine.row(v).data(), sizeof(float) * 20), 0);
+    // Clouds within the quantisation: half a quantum per coordinate, 1/32767 per normal
+    // component (plus float rounding).
+    const PointCloud cloud = db->ViewCloud(v);
+    const double quantum = data.models[a.model].cloud_quantum;
+    ASSERT_EQ(cloud.size(), data.view_clouds[v].size());
+    for (size_t i = 0; i < cloud.size(); ++i) {
+      EXPECT_LE((cloud.points[i] - data.view_clouds[v].points[i]).cwiseAbs().maxCoeff(),
+                0.5 * quantum + 1e-7);
+      EXPECT_LE((cloud.normals[i] - data.view_clouds[v].normals[i]).norm(), 1e-4);
+    }
+  }
+  EXPECT_EQ(db->coarse_dim(), 12);
+  EXPECT_EQ(db->fine_dim(), 20);
+  EXPECT_EQ(db->coarse_mean(), data.coarse_mean);
+  EXPECT_EQ(db->coarse_scale(), data.coarse_scale);
+  EXPECT_EQ(db->codes().words, data.codes.words);
+  EXPECT_EQ(db->index().size(), 21);
+  EXPECT_EQ(db->hasher().Serialize(), data.hasher.Serialize());
+  EXPECT_EQ(db->distance_scales().fine, 0.4);
+  EXPECT_EQ(db->distance_scales().coarse, 3.0);
+  EXPECT_EQ(db->distance_scales().size, 0.25);
+  // Standardise inverts the stored mean/scale.
+  const Eigen::VectorXf raw = Eigen::VectorXf::Constant(12, 2.0f);
+  EXPECT_TRUE(db->Standardise(raw).isApprox(
+      ((raw - data.coarse_mean).array() / data.coarse_scale.array()).matrix()));
+  // The hashed vector (fine mean and scale) survives, and so do the codes of the stored rows.
+  const Eigen::VectorXf fine = Eigen::VectorXf::LinSpaced(20, 0.0f, 1.0f);
+  EXPECT_EQ(db->HashInput(raw, fine),
+            HashInputVector(raw, fine, data.fine_mean, data.fine_hash_scale));
+  const BinaryCodes recoded = db->hasher().Encode(
+      db->HashInput(data.coarse.row(4).transpose(), data.fine.row(4).transpose()).transpose());
+  EXPECT_EQ(HammingDistance(recoded.code(0), db->codes().code(4), recoded.words_per_code), 0);
+  // The same file when written again (deterministic writer).
+  WriteDatabase(scratch.File("again.sopedb"), data);
+  EXPECT_EQ(ReadBytes(path), ReadBytes(scratch.File("again.sopedb")));
+}
+
+TEST(Database, SectionsArePageAligned) {
+  testing::ScratchDir scratch;
+  WriteDatabase(scratch.File("db.sopedb"), MakeSyntheticData(2));
+  const std::string bytes = ReadBytes(scratch.File("db.sopedb"));
+  for (const char* name : {"metadata", "views", "hasher", "standard", "codes", "coarse", "fine",
+                           "clouds"}) {
+    EXPECT_EQ(SectionOffset(bytes, name) % 4096, 0u) << name;
+  }
+  EXPECT_EQ(bytes.size() % 4096, 0u);
+}
+
+TEST(Database, RefusesTruncatedFiles) {
+  testing::ScratchDir scratch;
+  const std::string path = scratch.File("db.sopedb");
+  WriteDatabase(path, MakeSyntheticData(3));
+  const std::string bytes = ReadBytes(path);
+  for (size_t keep : {bytes.size() - 1, bytes.size() / 2, size_t{100}, size_t{40}}) {
+    const std::string cut = scratch.File("cut.sopedb");
+    WriteBytes(cut, bytes.substr(0, keep));
+    const std::string error = OpenError(cut);
+    EXPECT_NE(error.find("truncated"), std::string::npos) << keep << ": " << error;
+    EXPECT_NE(error.find(cut), std::string::npos) << error;
+  }
+}
+
+TEST(Database, RefusesBitFlipsInEverySection) {
+  testing::ScratchDir scratch;
+  const std::string path = scratch.File("db.sopedb");
+  WriteDatabase(path, MakeSyntheticData(4));
+  const std::string bytes = ReadBytes(path);
+  for (const char* name : {"metadata", "views", "hasher", "standard", "codes", "coarse", "fine",
+                           "clouds"}) {
+    std::string flipped = bytes;
+    flipped[SectionOffset(bytes, name) + 5] ^= 0x10;
+    const std::string bad = scratch.File("flipped.sopedb");
+    WriteBytes(bad, flipped);
+    const std::string error = OpenError(bad);
+    EXPECT_NE(error.find("corrupted: checksum mismatch in section '" + std::string(name) + "'"),
+              std::string::npos)
+        << name << ": " << error;
+    const bool mapped = std::string(name) == "coarse" || std::string(name) == "fine" ||
+                        std::string(name) == "clouds";
+    DatabaseOpenOptions lazy;
+    lazy.verify_mapped_sections = false;
+    // Without eager verification of the mapped sections only those flips go unnoticed.
+    EXPECT_EQ(OpenError(bad, lazy).empty(), mapped) << name;
+  }
+  // A flip in the section table (an offset) is caught by the header checksum.
+  std::string flipped = bytes;
+  flipped[64 + 40 * 2 + 17] ^= 0x01;
+  WriteBytes(scratch.File("table.sopedb"), flipped);
+  EXPECT_NE(OpenError(scratch.File("table.sopedb")).find("header checksum"), std::string::npos);
+}
+
+TEST(Database, RefusesOtherVersionsAndNonDatabaseFiles) {
+  testing::ScratchDir scratch;
+  const std::string path = scratch.File("db.sopedb");
+  WriteDatabase(path, MakeSyntheticData(5));
+  std::string bytes = ReadBytes(path);
+  const uint32_t version = 2;
+  std::memcpy(&bytes[8], &version, 4);
+  WriteBytes(scratch.File("v2.sopedb"), bytes);
+  std::string error = OpenError(scratch.File("v2.sopedb"));
+  EXPECT_NE(error.find("format version 2, this sope reads version 1"), std::string::npos) << error;
+
+  WriteFileAtomic(scratch.File("cloud.ply"), "ply\nformat ascii 1.0\nelement vertex 0\nend_header\n");
+  error = OpenError(scratch.File("cloud.ply"));
+  EXPECT_NE(error.find("is not a sope database"), std::string::npos) << error;
+  WriteFileAtomic(scratch.File("empty.sopedb"), "");
+  error = OpenError(scratch.File("empty.sopedb"));
+  EXPECT_NE(error.find("is not a sope database"), std::string::npos) << error;
+  error = OpenError(scratch.File("missing.sopedb"));
+  EXPECT_NE(error.find("cannot open database"), std::string::npos) << error;
+  error = OpenError(scratch.path());
+  EXPECT_NE(error.find("not a regular file"), std::string::npos) << error;
+}
+
+TEST(Database, WriteRefusesInconsistentData) {
+  testing::ScratchDir scratch;
+  DatabaseData data = MakeSyntheticData(6);
+  data.view_clouds.pop_back();
+  EXPECT_THROW(WriteDatabase(scratch.File("bad.sopedb"), data), Error);
+  data = MakeSyntheticData(6);
+  data.views[3].model = 2;  // not within model 2's view range
+  EXPECT_THROW(WriteDatabase(scratch.File("bad.sopedb"), data), Error);
+  EXPECT_FALSE(std::ifstream(scratch.File("bad.sopedb")).good());
+}
+
+TEST(Database, OptionsPresetsAndJson) {
+  const DatabaseOptions sope = DatabaseOptions::Preset("sope");
+  sope.Check();
+  const DatabaseOptions thesis = DatabaseOptions::Preset("thesis");
+  thesis.Check();
+  EXPECT_EQ(thesis.layout, ViewpointLayout::kThesis18);
+  EXPECT_EQ(thesis.views_per_model, 18);
+  EXPECT_EQ(thesis.hash.method, HashMethod::kMinimalLoss);
+  EXPECT_THROW(DatabaseOptions::Preset("fast"), Error);
+  DatabaseOptions custom = sope;
+  custom.hash.method = HashMethod::kSpectral;
+  custom.hash.bits = 128;
+  custom.render.distance = 0.5;
+  custom.preprocess.voxel_leaf = 0.003;
+  custom.features.kde_samples = 12;
+  EXPECT_EQ(DatabaseOptionsToJson(DatabaseOptionsFromJson(DatabaseOptionsToJson(custom))),
+            DatabaseOptionsToJson(custom));
+  DatabaseOptions bad = sope;
+  bad.views_per_model = 0;
+  EXPECT_THROW(bad.Check(), Error);
+  bad = sope;
+  bad.view_cloud_points = 4;
+  EXPECT_THROW(bad.Check(), Error);
+}
+
+}  // namespace
+}  // namespace sope

@@ -1,0 +1,218 @@
+// Simultaneous object recognition and pose estimation (thesis §4.6–4.7): a partial view
+// of an object is compared with a database of models seen from many viewpoints, and the
+// best matches name the object's class, model and viewpoint together; the pose follows
+// from the matched view, the roll about the line of sight and ICP.
+//
+// Pipeline of Recogniser::Recognise (per-stage times in RecognitionTimings):
+//  1. preprocess — Preprocess + canonical frame (DescribeView, exactly as the database
+//     views were built, with the options stored in the database);
+//  2. features — ComputeFeatures (coarse vector, fine descriptor);
+//  3. coarse — standardise the coarse vector, encode it with the database's hasher, and
+//     flag database views by Hamming distance: the k nearest codes (k =
+//     max(min_flagged, flag_fraction · views)) or, as in the thesis, all codes within a
+//     radius;
+//  4. fine — rank the flagged views by a weighted sum of three distances, each in units
+//     of its typical value between unrelated views (DistanceScales): L1 between the fine
+//     descriptors (VFH), Euclidean between the standardised coarse vectors, and
+//     |log(radius ratio)| (metric size agreement — a structured-light scan is metric);
+//  5. pose — for the best-ranked views (a few per model): roll hypotheses from polar
+//     signatures, a short ICP from each and a verification score; the best hypotheses get
+//     a full ICP and are re-ranked by how well model and query explain each other
+//     (recogniser/pose.h). This verification is what makes the first suggestion reliable
+//     when several models share a look from some viewpoints.
+// The result lists the top-k suggestions (one per model by default), each with class,
+// model, viewpoint, scores and the 6-DoF pose cam_from_model.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "core/point_cloud.h"
+#include "core/rigid3d.h"
+#include "recogniser/database.h"
+#include "recogniser/pose.h"
+
+namespace sope {
+
+enum class CoarseSearch {
+  kKBest,   // "kbest": the k nearest codes
+  kRadius,  // "radius": every code within radius_fraction · bits (thesis)
+};
+std::string ToString(CoarseSearch search);
+CoarseSearch CoarseSearchFromString(const std::string& text);
+
+// What makes two suggestions different.
+enum class SuggestionGrouping {
+  kModel,  // "model": the best view of each model (default)
+  kView,   // "view": any database entries, as the thesis listed them
+  kClass,  // "class": the best model of each class
+};
+std::string ToString(SuggestionGrouping grouping);
+SuggestionGrouping SuggestionGroupingFromString(const std::string& text);
+
+struct RecognitionOptions {
+  // Suggestions returned.
+  int top_k = 4;
+
+  // Coarse stage.
+  CoarseSearch coarse_search = CoarseSearch::kKBest;
+  double flag_fraction = 0.03;  // kKBest: fraction of the database flagged …
+  int min_flagged = 48;         // … but at least this many views (small databases)
+  double radius_fraction = 0.25;  // kRadius: Hamming radius as a fraction of the code length
+
+  // Fine stage: ranking distance = Σ weight · distance / DistanceScales. The coarse vector
+  // already holds the metric size block (FeatureOptions::metric_size), so the separate
+  // size term is off by default: on held-out instance queries with occlusion it pushed
+  // the first view of the right model from rank ≤ 1 to rank ≤ 44 at the 95th percentile
+  // (the normalisation radius shrinks when part of the object is hidden).
+  double fine_weight = 1.0;
+  double coarse_weight = 1.0;
+  double size_weight = 0.0;
+  // Then the best signature_views of them are re-ranked with the polar-signature
+  // correlation added: + signature_weight · (1 − best correlation over rolls). The
+  // signature (silhouette, depth and normal layout about the line of sight) is not
+  // mirror-invariant, unlike the histogram descriptors.
+  int signature_views = 0;
+  double signature_weight = 0.0;
+
+  // Pose stage. The first pose_models distinct models of the fine ranking are candidates;
+  // each one's views are ranked with the same distance (all its views when
+  // rank_all_views_of_candidates, else its flagged ones) and up to pose_views_per_model
+  // of them, at least pose_view_separation (radians between viewing directions) apart,
+  // get roll hypotheses and a short ICP of quick_iterations (with fewer candidate models
+  // than pose_models, each gets a proportionally larger share of the pose_models ·
+  // pose_views_per_model views). 0 pose_models skips ICP and verification: suggestions
+  // then carry the unrefined pose (database view, best roll, centroids aligned).
+  int pose_models = 8;
+  int pose_views_per_model = 4;
+  double pose_view_separation = 0.6;
+  bool rank_all_views_of_candidates = false;
+  int quick_iterations = 5;
+  // The short ICP and its score use the first quick_points points of the view cloud
+  // (stored in farthest-point order, so any prefix is an even subsample) and
+  // quick_coverage_samples query points.
+  int quick_points = 64;
+  int quick_coverage_samples = 128;
+  // Models whose best hypothesis gets refined: up to refine_passes ICP runs of
+  // refine_iterations, each with the stored view nearest to the current pose (a dense
+  // database has one within a few degrees), starting from a gate of refine_initial_gate
+  // metres; then the full verification with the view nearest to the final pose.
+  int refine_candidates = 6;
+  int refine_passes = 2;
+  int refine_iterations = 12;
+  double refine_initial_gate = 0.015;
+  // Final order: by alignment score (verification), ties and unposed suggestions by the
+  // ranking distance. false keeps the fine-stage order.
+  bool rerank_by_alignment = true;
+  // The re-ranking key is the alignment score minus ranking_penalty × the ranking distance
+  // of the view the pose search started from (descriptor similarity as a tie-breaker
+  // between models that fit about equally well).
+  double ranking_penalty = 0.0;
+  PoseOptions pose;
+
+  SuggestionGrouping grouping = SuggestionGrouping::kModel;
+
+  // Pose-only queries (thesis §5, the object known): when not empty, only these database
+  // models are considered and all their views are ranked (no coarse search).
+  std::vector<int> restrict_to_models;
+
+  // The thesis's query: radius search (15% of the code length for MLH/BRE, 25% SH, 50%
+  // LSH — pass the method), fine ranking by VFH and the radial distribution only, no pose
+  // refinement, database entries listed as they rank.
+  static RecognitionOptions ThesisPreset(HashMethod method);
+  // Throws sope::Error naming the first invalid value.
+  void Check() const;
+};
+
+struct Suggestion {
+  // Database view: for a posed suggestion the model's view nearest to the estimated pose
+  // (so `viewpoint` is the estimate's, to the database's spacing); the fine-stage distances
+  // below are those of the view the pose search started from.
+  int view = -1;
+  int model = -1;        // database model index
+  int class_index = -1;  // into Database::classes()
+  std::string model_name;
+  std::string class_name;
+  Viewpoint viewpoint;  // of the database view (radians)
+  int hamming_distance = 0;
+  // Fine-stage distances (raw) and their weighted combination (lower is better), and the
+  // rank of the view in the fine stage (0 = best).
+  double fine_distance = 0.0;
+  double coarse_distance = 0.0;
+  double size_distance = 0.0;
+  double ranking_distance = 0.0;
+  int fine_rank = 0;  // −1: found by the per-model view search, not among the flagged views
+  // Pose: X_cam = R·X_model + t, metres. `posed`: roll + (at least a short) ICP ran and
+  // the pose was verified; `refined`: the full ICP ran. Otherwise the unrefined estimate
+  // (database view turned by the best roll, centroids aligned).
+  Rigid3d cam_from_model;
+  bool posed = false;
+  bool refined = false;
+  bool converged = false;
+  double roll = 0.0;  // radians, about the line of sight
+  int icp_iterations = 0;
+  double icp_rms = 0.0;  // metres
+  AlignmentScore alignment;
+  // Confidence in [0, 1]: the alignment score (model fit × query coverage) for posed
+  // suggestions, 0 otherwise.
+  double score = 0.0;
+};
+
+// Milliseconds per stage: wall-clock time, and the calling thread's CPU time (the same
+// unless the machine is busy — compare CPU times on shared machines).
+struct RecognitionTimings {
+  double preprocess = 0.0;
+  double features = 0.0;
+  double coarse = 0.0;
+  double fine = 0.0;
+  double pose = 0.0;
+  double total = 0.0;
+  double preprocess_cpu = 0.0;
+  double features_cpu = 0.0;
+  double coarse_cpu = 0.0;
+  double fine_cpu = 0.0;
+  double pose_cpu = 0.0;
+  double total_cpu = 0.0;
+};
+
+struct RecognitionResult {
+  std::vector<Suggestion> suggestions;  // best first, at most top_k
+  int query_points = 0;                 // after pre-processing
+  float query_radius = 0.0f;            // normalisation radius, metres
+  int database_views = 0;
+  int flagged = 0;  // views the coarse search flagged
+  double flagged_fraction = 0.0;
+  int posed = 0;  // views that got a pose hypothesis
+  RecognitionTimings timing;
+
+  bool empty() const { return suggestions.empty(); }
+  const Suggestion& best() const { return suggestions.front(); }
+  // Several lines: the suggestions with class, model, viewpoint, score and pose, and the
+  // stage times.
+  std::string BriefReport() const;
+};
+
+// One JSON object (one line, DESIGN.md "Recognition result"): the best suggestion's
+// class, model, score, view (degrees), pose (cam_from_model: rotation 3×3 row by row,
+// translation metres), refined, timing_ms per stage, flagged and flagged_fraction, and
+// "candidates": every suggestion with the same fields plus its distances.
+std::string RecognitionResultToJson(const RecognitionResult& result);
+
+class Recogniser {
+ public:
+  // Keeps a reference: `database` must outlive the recogniser.
+  explicit Recogniser(const Database& database);
+
+  // Recognises the object in `cloud` (sensor frame, metres; normals and colours ignored).
+  // Single-threaded; safe to call concurrently. Throws sope::Error on invalid options or
+  // an unusable cloud (empty, no finite point, too few points after pre-processing — the
+  // message says which).
+  RecognitionResult Recognise(const PointCloud& cloud, const RecognitionOptions& options = {}) const;
+
+  const Database& database() const { return database_; }
+
+ private:
+  const Database& database_;
+};
+
+}  // namespace sope

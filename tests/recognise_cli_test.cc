@@ -1,0 +1,232 @@
+// `sope build-db` and `sope recognise` as a user runs them: a database from a models
+// directory (an unreadable mesh in it is reported and skipped), a rendered query recognised
+// (human-readable and JSON), and on bad input exactly one error line and a non-zero exit.
+#include <sys/wait.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <sstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "core/camera_model.h"
+#include "core/file_util.h"
+#include "core/point_cloud.h"
+#include "recogniser/viewpoints.h"
+#include "simulator/procedural_objects.h"
+#include "simulator/virtual_rig.h"
+#include "tests/test_support.h"
+
+namespace sope {
+namespace {
+namespace fs = std::filesystem;
+
+struct SopeRun {
+  int exit_code = -1;
+  std::string out;
+  std::string err;
+};
+
+std::string Quote(const std::string& text) { return "'" + text + "'"; }
+
+SopeRun Sope(const std::string& arguments, const testing::ScratchDir& scratch) {
+  const std::string out_file = scratch.File(".stdout"), err_file = scratch.File(".stderr");
+  const std::string command = std::string(SOPE_BINARY) + " " + arguments + " >" +
+                              Quote(out_file) + " 2>" + Quote(err_file);
+  const int status = std::system(command.c_str());
+  SopeRun run;
+  run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream out(out_file), err(err_file);
+  std::stringstream out_text, err_text;
+  out_text << out.rdbuf();
+  err_text << err.rdbuf();
+  run.out = out_text.str();
+  run.err = err_text.str();
+  return run;
+}
+
+// Exactly one line on stderr, naming the command, containing `needle`; non-zero exit.
+void ExpectOneLineError(const SopeRun& run, const std::string& command, const std::string& needle) {
+  EXPECT_NE(run.exit_code, 0);
+  EXPECT_EQ(std::count(run.err.begin(), run.err.end(), '\n'), 1) << run.err;
+  EXPECT_EQ(run.err.rfind("sope " + command + ": error: ", 0), 0u) << run.err;
+  EXPECT_NE(run.err.find(needle), std::string::npos) << "expected '" << needle << "' in: "
+                                                     << run.err;
+}
+
+std::string ReadBytes(const std::string& path) { return ReadFileToString(path, "file"); }
+void WriteBytes(const std::string& path, const std::string& bytes) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+}
+
+class RecogniseCli : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    scratch_ = new testing::ScratchDir();
+    const std::string models = scratch_->File("models");
+    WriteMesh(models + "/mug/mug_a.obj", MakeObject(ObjectClass::kMug, 1));
+    WriteMesh(models + "/bottle/bottle_a.obj", MakeObject(ObjectClass::kBottle, 1));
+    WriteFileAtomic(models + "/broken.obj", "v 0 0 0\nthis is not an OBJ line\n");
+    build_ = new SopeRun(Sope("build-db --models " + models + " --out " +
+                                  scratch_->File("db.sopedb") + " --views 40",
+                              *scratch_));
+    // A query: the mug 0.55 m away from an off-grid viewpoint, rolled.
+    const TriangleMesh mug = MakeObject(ObjectClass::kMug, 1);
+    Eigen::Vector3f lo, hi;
+    mug.Bounds(&lo, &hi);
+    DepthRenderer renderer(MakePinhole(640, 480, 1.0));
+    renderer.SetMesh(mug);
+    const Rigid3d look =
+        CameraPoseForViewpoint(Viewpoint{1.1, 0.7}, 0.55, (0.5 * (lo + hi)).cast<double>());
+    const Rigid3d cam_from_model(
+        Eigen::AngleAxisd(0.6, Eigen::Vector3d::UnitZ()).toRotationMatrix() * look.rotation,
+        Eigen::AngleAxisd(0.6, Eigen::Vector3d::UnitZ()).toRotationMatrix() * look.translation);
+    PointCloud query = renderer.Render(cam_from_model);
+    query.normals.clear();
+    WritePointCloud(scratch_->File("query.ply"), query);
+    WritePointCloud(scratch_->File("query.pcd"), query);
+  }
+  static void TearDownTestSuite() {
+    delete build_;
+    delete scratch_;
+  }
+  const std::string& db() const {
+    static const std::string path = scratch_->File("db.sopedb");
+    return path;
+  }
+
+  static testing::ScratchDir* scratch_;
+  static SopeRun* build_;
+  testing::ScratchDir local_;
+};
+testing::ScratchDir* RecogniseCli::scratch_ = nullptr;
+SopeRun* RecogniseCli::build_ = nullptr;
+
+TEST_F(RecogniseCli, BuildDbSkipsAndReportsTheUnreadableMesh) {
+  ASSERT_EQ(build_->exit_code, 0) << build_->err;
+  EXPECT_TRUE(fs::exists(db()));
+  EXPECT_NE(build_->err.find("broken.obj"), std::string::npos) << build_->err;
+  EXPECT_NE(build_->err.find("2 models, 80 views"), std::string::npos) << build_->err;
+  EXPECT_EQ(build_->out, "");
+  const SopeRun help = Sope("--help", local_);
+  EXPECT_NE(help.out.find("build-db"), std::string::npos);
+  EXPECT_NE(help.out.find("recognise"), std::string::npos);
+  EXPECT_EQ(Sope("build-db --help", local_).exit_code, 0);
+  EXPECT_EQ(Sope("recognise --help", local_).exit_code, 0);
+}
+
+TEST_F(RecogniseCli, RecognisesTheQueryInTextAndJson) {
+  ASSERT_EQ(build_->exit_code, 0) << build_->err;
+  SopeRun run = Sope("recognise --db " + db() + " --cloud " + scratch_->File("query.ply"), local_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_EQ(run.out.rfind("1. mug", 0), 0u) << run.out;
+  EXPECT_NE(run.out.find("ICP-refined"), std::string::npos) << run.out;
+
+  run = Sope("recognise --json --top 2 --db " + db() + " --cloud " + scratch_->File("query.pcd"),
+             local_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_EQ(std::count(run.out.begin(), run.out.end(), '\n'), 1) << run.out;
+  const nlohmann::json j = nlohmann::json::parse(run.out);
+  EXPECT_EQ(j.at("class"), "mug");
+  EXPECT_EQ(j.at("model"), "mug_a");
+  EXPECT_TRUE(j.at("refined").get<bool>());
+  EXPECT_GT(j.at("score").get<double>(), 0.8);
+  EXPECT_EQ(j.at("pose").at("rotation").size(), 3u);
+  EXPECT_EQ(j.at("candidates").size(), 2u);
+  EXPECT_TRUE(j.at("timing_ms").contains("total"));
+}
+
+TEST_F(RecogniseCli, BadCloudsGiveOneErrorLine) {
+  ASSERT_EQ(build_->exit_code, 0) << build_->err;
+  const std::string base = "recognise --db " + db() + " --cloud ";
+  ExpectOneLineError(Sope(base + local_.File("missing.ply"), local_), "recognise", "missing.ply");
+
+  WritePointCloud(local_.File("empty.ply"), PointCloud());
+  ExpectOneLineError(Sope(base + local_.File("empty.ply"), local_), "recognise", "empty");
+
+  PointCloud nans;
+  nans.points.assign(2000, Eigen::Vector3f::Constant(std::numeric_limits<float>::quiet_NaN()));
+  WritePointCloud(local_.File("nan.ply"), nans);
+  ExpectOneLineError(Sope(base + local_.File("nan.ply"), local_), "recognise", "finite");
+
+  PointCloud tiny;
+  for (int i = 0; i < 12; ++i) tiny.points.emplace_back(0.002f * i, 0.0f, 0.6f);
+  WritePointCloud(local_.File("tiny.ply"), tiny);
+  ExpectOneLineError(Sope(base + local_.File("tiny.ply"), local_), "recognise", "points");
+
+  WriteFileAtomic(local_.File("garbage.ply"), "ply\nformat ascii 1.0\nelement vertex 3\n");
+  ExpectOneLineError(Sope(base + local_.File("garbage.ply"), local_), "recognise", "garbage.ply");
+}
+
+TEST_F(RecogniseCli, BadDatabasesGiveOneErrorLine) {
+  ASSERT_EQ(build_->exit_code, 0) << build_->err;
+  const std::string cloud = " --cloud " + scratch_->File("query.ply");
+  const std::string bytes = ReadBytes(db());
+
+  ExpectOneLineError(Sope("recognise --db " + local_.File("none.sopedb") + cloud, local_),
+                     "recognise", "cannot open database");
+
+  WriteBytes(local_.File("truncated.sopedb"), bytes.substr(0, bytes.size() * 2 / 3));
+  ExpectOneLineError(Sope("recognise --db " + local_.File("truncated.sopedb") + cloud, local_),
+                     "recognise", "truncated");
+
+  std::string flipped = bytes;
+  flipped[flipped.size() - 5000] ^= 0x04;  // inside the last (clouds) section
+  WriteBytes(local_.File("flipped.sopedb"), flipped);
+  ExpectOneLineError(Sope("recognise --db " + local_.File("flipped.sopedb") + cloud, local_),
+                     "recognise", "corrupted");
+
+  std::string version = bytes;
+  const uint32_t future = 99;
+  std::memcpy(&version[8], &future, sizeof(future));
+  WriteBytes(local_.File("v99.sopedb"), version);
+  ExpectOneLineError(Sope("recognise --db " + local_.File("v99.sopedb") + cloud, local_),
+                     "recognise", "version 99");
+
+  ExpectOneLineError(Sope("recognise --db " + scratch_->File("query.ply") + cloud, local_),
+                     "recognise", "not a sope database");
+}
+
+TEST_F(RecogniseCli, BadBuildInputsGiveOneErrorLine) {
+  fs::create_directories(local_.File("nothing"));
+  ExpectOneLineError(Sope("build-db --models " + local_.File("nothing") + " --out " +
+                              local_.File("x.sopedb"),
+                          local_),
+                     "build-db", "holds no mesh");
+  ExpectOneLineError(Sope("build-db --models " + local_.File("absent") + " --out " +
+                              local_.File("x.sopedb"),
+                          local_),
+                     "build-db", "does not exist");
+  const std::string models = " --models " + scratch_->File("models") + " --out " +
+                             local_.File("x.sopedb");
+  ExpectOneLineError(Sope("build-db --views 0" + models, local_), "build-db", "--views");
+  ExpectOneLineError(Sope("build-db --hash md5" + models, local_), "build-db", "md5");
+  ExpectOneLineError(Sope("build-db --preset fast" + models, local_), "build-db", "fast");
+  ExpectOneLineError(Sope("build-db --layout thesis --views 20" + models, local_), "build-db",
+                     "18");
+  // Only unreadable meshes: each is reported (a warning line), then one error line.
+  WriteFileAtomic(local_.File("bad/a.obj"), "not a mesh\n");
+  WriteFileAtomic(local_.File("bad/b/c.off"), "OFF\n3 1 0\n0 0 0\n");
+  const SopeRun run = Sope("build-db --models " + local_.File("bad") + " --out " +
+                               local_.File("x.sopedb"),
+                           local_);
+  EXPECT_NE(run.exit_code, 0);
+  std::istringstream lines(run.err);
+  std::string line;
+  int errors = 0, warnings = 0;
+  while (std::getline(lines, line)) {
+    errors += line.rfind("sope build-db: error: ", 0) == 0;
+    warnings += line.find("skipping model") != std::string::npos;
+  }
+  EXPECT_EQ(errors, 1) << run.err;
+  EXPECT_EQ(warnings, 2) << run.err;
+  EXPECT_NE(run.err.find("no database view could be built"), std::string::npos) << run.err;
+  EXPECT_FALSE(fs::exists(local_.File("x.sopedb")));
+}
+
+}  // namespace
+}  // namespace sope
