@@ -1,0 +1,592 @@
+#include "recogniser/evaluation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <map>
+#include <random>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "core/camera_model.h"
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/plots.h"
+#include "recogniser/database_builder.h"
+#include "recogniser/viewpoints.h"
+#include "simulator/virtual_rig.h"
+
+namespace sope {
+namespace {
+
+constexpr double kRadToDeg = 180.0 / M_PI;
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+constexpr int kAddsSamples = 2000;
+// A query cloud needs this many points to be worth asking (fewer: the object was mostly
+// outside the image or hidden; the query is drawn again).
+constexpr int kMinQueryPoints = 300;
+constexpr int kMaxQueryAttempts = 20;
+
+EvalModel MakeEvalModel(TriangleMesh mesh, const std::string& name, const std::string& class_name,
+                        const std::string& path, double scale, int db_model) {
+  EvalModel model;
+  model.name = name;
+  model.class_name = class_name;
+  model.path = path;
+  model.db_model = db_model;
+  if (scale != 1.0) mesh.Transform(scale, Eigen::Vector3d::Zero());
+  Eigen::Vector3f lo, hi;
+  mesh.Bounds(&lo, &hi);
+  model.center = (0.5 * (lo + hi)).cast<double>();
+  for (const Eigen::Vector3f& v : mesh.vertices) {
+    model.bounding_radius =
+        std::max(model.bounding_radius, (v.cast<double>() - model.center).norm());
+  }
+  model.diameter = mesh.BoundingDiagonal();
+  model.samples = SampleSurface(mesh, kAddsSamples, 5);
+  model.symmetry = DetectSymmetry(mesh);
+  model.mesh = std::move(mesh);
+  return model;
+}
+
+// Angle between viewing directions (model frame) modulo the model's symmetries: a view
+// from d looks the same as one from S·d.
+double SymmetricViewpointErrorDeg(const Eigen::Vector3d& estimate, const Eigen::Vector3d& truth,
+                                  const ModelSymmetry& symmetry) {
+  double best = 180.0;
+  for (const Eigen::Matrix3d& s : symmetry.rotations) {
+    const Eigen::Vector3d d = s * estimate;
+    double error;
+    if (symmetry.continuous) {
+      const double a = std::acos(std::clamp(d.dot(symmetry.axis), -1.0, 1.0));
+      const double b = std::acos(std::clamp(truth.dot(symmetry.axis), -1.0, 1.0));
+      error = std::abs(a - b) * kRadToDeg;
+    } else {
+      error = std::acos(std::clamp(d.dot(truth), -1.0, 1.0)) * kRadToDeg;
+    }
+    best = std::min(best, error);
+  }
+  return best;
+}
+
+std::vector<double> Defined(const std::vector<QueryOutcome>& outcomes,
+                            double QueryOutcome::*field) {
+  std::vector<double> values;
+  for (const QueryOutcome& o : outcomes) {
+    if (std::isfinite(o.*field)) values.push_back(o.*field);
+  }
+  return values;
+}
+
+double Quantile(std::vector<double> values, double q) {
+  if (values.empty()) return kNaN;
+  std::sort(values.begin(), values.end());
+  const size_t index = std::min(values.size() - 1, static_cast<size_t>(q * values.size()));
+  return values[index];
+}
+
+double Median(const std::vector<double>& values) { return Quantile(values, 0.5); }
+
+template <typename Predicate>
+double Fraction(const std::vector<QueryOutcome>& outcomes, Predicate predicate) {
+  if (outcomes.empty()) return 0.0;
+  int count = 0;
+  for (const QueryOutcome& o : outcomes) count += predicate(o) ? 1 : 0;
+  return static_cast<double>(count) / static_cast<double>(outcomes.size());
+}
+
+// NaN as JSON null.
+nlohmann::json Number(double value) {
+  return std::isfinite(value) ? nlohmann::json(value) : nlohmann::json(nullptr);
+}
+
+std::string Percent(double fraction) { return fmt::format("{:.1f}%", 100.0 * fraction); }
+std::string Fixed(double value, int digits) {
+  return std::isfinite(value) ? fmt::format("{:.{}f}", value, digits) : std::string("–");
+}
+
+}  // namespace
+
+std::string ToString(EvalProtocol protocol) {
+  return protocol == EvalProtocol::kInstance ? "instance" : "class";
+}
+
+EvalProtocol EvalProtocolFromString(const std::string& text) {
+  if (text == "instance") return EvalProtocol::kInstance;
+  if (text == "class") return EvalProtocol::kClass;
+  throw Error(fmt::format("unknown evaluation protocol '{}' (instance or class)", text));
+}
+
+void EvalOptions::Check() const {
+  SOPE_CHECK(queries_per_model >= 1, "queries per model must be ≥ 1, got {}", queries_per_model);
+  SOPE_CHECK(camera_width >= 16 && camera_height >= 16, "query camera {}x{} is too small",
+             camera_width, camera_height);
+  SOPE_CHECK(camera_fov > 0.05 && camera_fov < 3.0, "query camera field of view {} rad is "
+             "implausible", camera_fov);
+  SOPE_CHECK(adds_fraction > 0.0, "ADD-S threshold must be positive, got {}", adds_fraction);
+  query.Check();
+  recognition.Check();
+}
+
+std::vector<EvalModel> InstanceModels(const Database& db) {
+  std::vector<EvalModel> models;
+  for (int m = 0; m < db.num_models(); ++m) {
+    const ModelRecord& record = db.model(m);
+    TriangleMesh mesh;
+    try {
+      mesh = ReadMesh(record.source_path);
+    } catch (const Error& e) {
+      throw Error(fmt::format("model {} of the database: its mesh {} is gone or unreadable ({}); "
+                              "the instance protocol renders the database's own meshes",
+                              record.name, record.source_path, e.what()));
+    }
+    models.push_back(
+        MakeEvalModel(std::move(mesh), record.name, record.class_name, record.source_path,
+                      record.scale, m));
+  }
+  return models;
+}
+
+std::vector<EvalModel> HeldOutModels(const Database& db, const std::string& models_dir,
+                                     std::vector<std::string>* skipped) {
+  const std::vector<std::string>& classes = db.classes();
+  std::vector<EvalModel> models;
+  for (const ModelSource& source : ListModels(models_dir)) {
+    if (std::find(classes.begin(), classes.end(), source.class_name) == classes.end()) {
+      if (skipped) skipped->push_back(source.path + ": class '" + source.class_name +
+                                      "' is not in the database");
+      continue;
+    }
+    TriangleMesh mesh;
+    try {
+      mesh = ReadMesh(source.path);
+      mesh.Check();
+    } catch (const Error& e) {
+      if (skipped) skipped->push_back(source.path + ": " + e.what());
+      continue;
+    }
+    const double scale = SizeNormalisationScale(mesh, db.options().size);
+    models.push_back(
+        MakeEvalModel(std::move(mesh), source.name, source.class_name, source.path, scale, -1));
+  }
+  SOPE_CHECK(!models.empty(), "no usable held-out model in {} (need meshes of the database's "
+             "classes: {})", models_dir, fmt::join(classes, ", "));
+  return models;
+}
+
+EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
+                    const EvalOptions& options, const EvalProgress& progress) {
+  options.Check();
+  SOPE_CHECK(!models.empty(), "evaluation: no models to query");
+  for (const EvalModel& model : models) {
+    SOPE_CHECK(options.protocol == EvalProtocol::kClass ||
+                   (model.db_model >= 0 && model.db_model < db.num_models()),
+               "instance protocol: model {} is not in the database", model.name);
+  }
+  EvalReport report;
+  report.options = options;
+  report.database_path = db.path();
+  report.database_views = db.num_views();
+  report.database_models = db.num_models();
+  report.hash = fmt::format("{} {}", ToString(db.hasher().method()), db.hasher().bits());
+  if (options.protocol == EvalProtocol::kInstance) {
+    for (const EvalModel& model : models) report.labels.push_back(model.name);
+  } else {
+    report.labels = db.classes();
+  }
+
+  const CameraModel camera =
+      MakePinhole(options.camera_width, options.camera_height, options.camera_fov);
+  DepthRenderer renderer(camera);
+  const Recogniser recogniser(db);
+  std::mt19937_64 rng(options.seed);
+  const int total = static_cast<int>(models.size()) * options.queries_per_model;
+  int done = 0;
+  for (size_t m = 0; m < models.size(); ++m) {
+    const EvalModel& model = models[m];
+    renderer.SetMesh(model.mesh);
+    for (int k = 0; k < options.queries_per_model; ++k) {
+      SyntheticQuery query;
+      for (int attempt = 0; attempt < kMaxQueryAttempts; ++attempt) {
+        query = RenderSyntheticQuery(&renderer, camera, model.center, model.bounding_radius,
+                                     options.query, &rng);
+        if (static_cast<int>(query.cloud.size()) >= kMinQueryPoints) break;
+      }
+      QueryOutcome outcome;
+      outcome.query_model = static_cast<int>(m);
+      outcome.truth_model = model.name;
+      outcome.truth_class = model.class_name;
+      outcome.truth_viewpoint = query.viewpoint;
+      outcome.distance = query.distance;
+      outcome.occluded_fraction = query.occluded_fraction;
+      outcome.cloud_points = static_cast<int>(query.cloud.size());
+      outcome.viewpoint_error_deg = outcome.rotation_error_deg = outcome.translation_error_m =
+          outcome.adds_m = outcome.adds_over_diameter = kNaN;
+      RecognitionResult result;
+      try {
+        result = recogniser.Recognise(query.cloud, options.recognition);
+        SOPE_CHECK(!result.empty(), "no suggestion");
+      } catch (const Error& e) {
+        outcome.error = e.what();
+        report.outcomes.push_back(std::move(outcome));
+        if (progress) progress(++done, total);
+        continue;
+      }
+      const Suggestion& best = result.best();
+      outcome.predicted_model = best.model_name;
+      outcome.predicted_class = best.class_name;
+      outcome.refined = best.refined;
+      outcome.score = best.score;
+      outcome.flagged_fraction = result.flagged_fraction;
+      outcome.timing = result.timing;
+      for (size_t s = 0; s < result.suggestions.size(); ++s) {
+        const Suggestion& suggestion = result.suggestions[s];
+        const bool same_model = model.db_model >= 0 && suggestion.model == model.db_model;
+        const bool same_class = suggestion.class_name == model.class_name;
+        if (s == 0) {
+          outcome.model_top1 = same_model;
+          outcome.class_top1 = same_class;
+        }
+        outcome.model_topk |= same_model;
+        outcome.class_topk |= same_class;
+      }
+      // Viewpoint: where the estimated pose puts the camera, seen from the suggested
+      // model's centre, against the truth (modulo the query model's symmetries).
+      const bool comparable = options.protocol == EvalProtocol::kInstance ? outcome.model_top1
+                                                                          : outcome.class_top1;
+      if (comparable) {
+        const Eigen::Vector3d estimate =
+            ViewpointFromPose(best.cam_from_model, db.model(best.model).center).Direction();
+        outcome.viewpoint_error_deg =
+            SymmetricViewpointErrorDeg(estimate, query.viewpoint.Direction(), model.symmetry);
+      }
+      if (options.protocol == EvalProtocol::kInstance) {
+        if (outcome.model_top1) {
+          outcome.rotation_error_deg = SymmetricRotationErrorDeg(
+              best.cam_from_model.rotation, query.cam_from_model.rotation, model.symmetry);
+          outcome.translation_error_m = (best.cam_from_model * model.center -
+                                         query.cam_from_model * model.center)
+                                            .norm();
+          outcome.adds_m =
+              AverageDistanceSymmetric(model.samples, best.cam_from_model, query.cam_from_model);
+          outcome.adds_over_diameter = outcome.adds_m / model.diameter;
+          outcome.adds_ok = outcome.adds_over_diameter < options.adds_fraction;
+        }
+      }
+      report.outcomes.push_back(std::move(outcome));
+      if (progress) progress(++done, total);
+    }
+  }
+  return report;
+}
+
+double EvalReport::ModelTop1() const {
+  return Fraction(outcomes, [](const QueryOutcome& o) { return o.model_top1; });
+}
+double EvalReport::ModelTopK() const {
+  return Fraction(outcomes, [](const QueryOutcome& o) { return o.model_topk; });
+}
+double EvalReport::ClassTop1() const {
+  return Fraction(outcomes, [](const QueryOutcome& o) { return o.class_top1; });
+}
+double EvalReport::ClassTopK() const {
+  return Fraction(outcomes, [](const QueryOutcome& o) { return o.class_topk; });
+}
+double EvalReport::AddsSuccess() const {
+  return Fraction(outcomes, [](const QueryOutcome& o) { return o.adds_ok; });
+}
+double EvalReport::RotationSuccess() const {
+  const double threshold = options.rotation_threshold_deg;
+  return Fraction(outcomes, [threshold](const QueryOutcome& o) {
+    return std::isfinite(o.rotation_error_deg) && o.rotation_error_deg < threshold;
+  });
+}
+double EvalReport::MedianViewpointErrorDeg() const {
+  return Median(Defined(outcomes, &QueryOutcome::viewpoint_error_deg));
+}
+double EvalReport::MedianRotationErrorDeg() const {
+  return Median(Defined(outcomes, &QueryOutcome::rotation_error_deg));
+}
+double EvalReport::MedianTranslationErrorMm() const {
+  return 1e3 * Median(Defined(outcomes, &QueryOutcome::translation_error_m));
+}
+double EvalReport::MedianAddsOverDiameter() const {
+  return Median(Defined(outcomes, &QueryOutcome::adds_over_diameter));
+}
+double EvalReport::MeanFlaggedFraction() const {
+  double sum = 0.0;
+  int count = 0;
+  for (const QueryOutcome& o : outcomes) {
+    if (!o.error.empty()) continue;
+    sum += o.flagged_fraction;
+    ++count;
+  }
+  return count > 0 ? sum / count : kNaN;
+}
+double EvalReport::MaxFlaggedFraction() const {
+  double worst = 0.0;
+  for (const QueryOutcome& o : outcomes) worst = std::max(worst, o.flagged_fraction);
+  return worst;
+}
+
+RecognitionTimings EvalReport::MedianTimings() const {
+  RecognitionTimings median;
+  auto stage = [&](double RecognitionTimings::*field) {
+    std::vector<double> values;
+    for (const QueryOutcome& o : outcomes) {
+      if (o.error.empty()) values.push_back(o.timing.*field);
+    }
+    return Median(values);
+  };
+  median.preprocess = stage(&RecognitionTimings::preprocess);
+  median.features = stage(&RecognitionTimings::features);
+  median.coarse = stage(&RecognitionTimings::coarse);
+  median.fine = stage(&RecognitionTimings::fine);
+  median.pose = stage(&RecognitionTimings::pose);
+  median.total = stage(&RecognitionTimings::total);
+  median.preprocess_cpu = stage(&RecognitionTimings::preprocess_cpu);
+  median.features_cpu = stage(&RecognitionTimings::features_cpu);
+  median.coarse_cpu = stage(&RecognitionTimings::coarse_cpu);
+  median.fine_cpu = stage(&RecognitionTimings::fine_cpu);
+  median.pose_cpu = stage(&RecognitionTimings::pose_cpu);
+  median.total_cpu = stage(&RecognitionTimings::total_cpu);
+  return median;
+}
+
+double EvalReport::P95TotalMs() const {
+  std::vector<double> values;
+  for (const QueryOutcome& o : outcomes) {
+    if (o.error.empty()) values.push_back(o.timing.total_cpu);
+  }
+  return Quantile(values, 0.95);
+}
+
+std::vector<std::vector<int>> EvalReport::Confusion(std::vector<std::string>* labels_out) const {
+  std::vector<std::string> labels = this->labels;
+  const bool any_refused = std::any_of(outcomes.begin(), outcomes.end(),
+                                       [](const QueryOutcome& o) { return !o.error.empty(); });
+  std::map<std::string, int> index;
+  for (size_t i = 0; i < labels.size(); ++i) index[labels[i]] = static_cast<int>(i);
+  // Predictions outside the labels (instance protocol: a database model that is not among
+  // the queried ones cannot happen; kept general) get their own columns.
+  const bool instance = options.protocol == EvalProtocol::kInstance;
+  for (const QueryOutcome& o : outcomes) {
+    const std::string& predicted = instance ? o.predicted_model : o.predicted_class;
+    if (o.error.empty() && !index.count(predicted)) {
+      index[predicted] = static_cast<int>(labels.size());
+      labels.push_back(predicted);
+    }
+  }
+  if (any_refused) labels.push_back("(none)");
+  std::vector<std::vector<int>> counts(labels.size(), std::vector<int>(labels.size(), 0));
+  for (const QueryOutcome& o : outcomes) {
+    const int row = index.at(instance ? o.truth_model : o.truth_class);
+    const int column = o.error.empty()
+                           ? index.at(instance ? o.predicted_model : o.predicted_class)
+                           : static_cast<int>(labels.size()) - 1;
+    ++counts[row][column];
+  }
+  if (labels_out) *labels_out = labels;
+  return counts;
+}
+
+std::string EvalReport::BriefReport() const {
+  const RecognitionTimings t = MedianTimings();
+  std::string text = fmt::format(
+      "{} protocol, method {}: {} queries, database {} models / {} views ({})\n", ToString(
+          options.protocol), options.method_name, queries(), database_models, database_views, hash);
+  if (options.protocol == EvalProtocol::kInstance) {
+    text += fmt::format(
+        "  model top-1 {}, top-{} {}; class top-1 {}, top-{} {}\n"
+        "  pose (first suggestion): median rotation error {}° (modulo symmetry), centre {} mm, "
+        "ADD-S median {}% of the diameter, ADD-S@{:.0f}% {}, rotation < {:.0f}° {}\n",
+        Percent(ModelTop1()), options.recognition.top_k, Percent(ModelTopK()),
+        Percent(ClassTop1()), options.recognition.top_k, Percent(ClassTopK()),
+        Fixed(MedianRotationErrorDeg(), 2), Fixed(MedianTranslationErrorMm(), 2),
+        Fixed(100.0 * MedianAddsOverDiameter(), 2), 100.0 * options.adds_fraction,
+        Percent(AddsSuccess()), options.rotation_threshold_deg, Percent(RotationSuccess()));
+  } else {
+    text += fmt::format("  class top-1 {}, top-{} {}\n", Percent(ClassTop1()),
+                        options.recognition.top_k, Percent(ClassTopK()));
+  }
+  text += fmt::format(
+      "  median viewpoint error {}°; flagged {} of the database (mean, max {})\n"
+      "  CPU ms per query (median): preprocess {:.2f}, features {:.2f}, coarse {:.2f}, fine "
+      "{:.2f}, pose {:.2f}, total {:.2f} (p95 {:.2f})",
+      Fixed(MedianViewpointErrorDeg(), 2), Percent(MeanFlaggedFraction()),
+      Percent(MaxFlaggedFraction()), t.preprocess_cpu, t.features_cpu, t.coarse_cpu, t.fine_cpu,
+      t.pose_cpu, t.total_cpu, P95TotalMs());
+  return text;
+}
+
+std::string EvalReport::ToMarkdown() const {
+  const RecognitionTimings t = MedianTimings();
+  const int k = options.recognition.top_k;
+  std::string md = fmt::format("# Recognition evaluation: {} protocol, method `{}`\n\n",
+                               ToString(options.protocol), options.method_name);
+  md += fmt::format(
+      "Database `{}`: {} models, {} views, {} codes. {} queries ({} per model, seed {}), "
+      "rendered off the database grid: distance {:.2f}–{:.2f} m, off-axis ≤ {:.2f} rad, "
+      "{} roll, depth noise σ {:.1f} mm at 0.6 m, up to {} occluded; query camera {}×{}, "
+      "{:.1f}° wide.\n\n",
+      database_path, database_models, database_views, hash, queries(), options.queries_per_model,
+      options.seed, options.query.min_distance, options.query.max_distance,
+      options.query.max_off_axis, options.query.random_roll ? "random" : "no",
+      1e3 * options.query.depth_noise, Percent(options.query.max_occlusion),
+      options.camera_width, options.camera_height, options.camera_fov * kRadToDeg);
+  md += "| measure | value |\n|---|---|\n";
+  if (options.protocol == EvalProtocol::kInstance) {
+    md += fmt::format("| model top-1 | {} |\n| model top-{} | {} |\n", Percent(ModelTop1()), k,
+                      Percent(ModelTopK()));
+  }
+  md += fmt::format("| class top-1 | {} |\n| class top-{} | {} |\n", Percent(ClassTop1()), k,
+                    Percent(ClassTopK()));
+  md += fmt::format("| median viewpoint error (correct {}) | {}° |\n",
+                    options.protocol == EvalProtocol::kInstance ? "model" : "class",
+                    Fixed(MedianViewpointErrorDeg(), 2));
+  if (options.protocol == EvalProtocol::kInstance) {
+    md += fmt::format(
+        "| median rotation error, modulo symmetry (correct model) | {}° |\n"
+        "| median centre error (correct model) | {} mm |\n"
+        "| median ADD-S (correct model) | {}% of the diameter |\n"
+        "| ADD-S < {:.0f}% of the diameter (all queries) | {} |\n"
+        "| rotation error < {:.0f}°, modulo symmetry (all queries) | {} |\n",
+        Fixed(MedianRotationErrorDeg(), 2), Fixed(MedianTranslationErrorMm(), 2),
+        Fixed(100.0 * MedianAddsOverDiameter(), 2), 100.0 * options.adds_fraction,
+        Percent(AddsSuccess()), options.rotation_threshold_deg, Percent(RotationSuccess()));
+  }
+  md += fmt::format("| database flagged by the coarse search | {} mean, {} max |\n",
+                    Percent(MeanFlaggedFraction()), Percent(MaxFlaggedFraction()));
+  const int refused = static_cast<int>(std::count_if(
+      outcomes.begin(), outcomes.end(), [](const QueryOutcome& o) { return !o.error.empty(); }));
+  md += fmt::format("| queries refused | {} |\n\n", refused);
+  md += "CPU milliseconds per query (median; one thread):\n\n"
+        "| preprocess | features | coarse | fine | pose | total | total p95 |\n"
+        "|---|---|---|---|---|---|---|\n";
+  md += fmt::format("| {:.2f} | {:.2f} | {:.2f} | {:.2f} | {:.2f} | {:.2f} | {:.2f} |\n\n",
+                    t.preprocess_cpu, t.features_cpu, t.coarse_cpu, t.fine_cpu, t.pose_cpu,
+                    t.total_cpu, P95TotalMs());
+  // Per label accuracy.
+  md += fmt::format("| {} | queries | top-1 | top-{} |\n|---|---|---|---|\n",
+                    options.protocol == EvalProtocol::kInstance ? "model" : "class", k);
+  const bool instance = options.protocol == EvalProtocol::kInstance;
+  for (const std::string& label : labels) {
+    int n = 0, top1 = 0, topk = 0;
+    for (const QueryOutcome& o : outcomes) {
+      if ((instance ? o.truth_model : o.truth_class) != label) continue;
+      ++n;
+      top1 += instance ? o.model_top1 : o.class_top1;
+      topk += instance ? o.model_topk : o.class_topk;
+    }
+    if (n > 0) md += fmt::format("| {} | {} | {} | {} |\n", label, n, top1, topk);
+  }
+  if (!skipped_models.empty()) {
+    md += "\nSkipped models:\n\n";
+    for (const std::string& s : skipped_models) md += "- " + s + "\n";
+  }
+  md += "\nPictures: `confusion.png` (rows truth, columns first suggestion), `pose_errors.png`.\n";
+  return md;
+}
+
+std::string EvalReport::ToJson() const {
+  const RecognitionTimings t = MedianTimings();
+  nlohmann::json j;
+  j["protocol"] = ToString(options.protocol);
+  j["method"] = options.method_name;
+  j["database"] = {{"path", database_path},
+                   {"models", database_models},
+                   {"views", database_views},
+                   {"hash", hash}};
+  j["queries"] = queries();
+  j["queries_per_model"] = options.queries_per_model;
+  j["seed"] = options.seed;
+  j["top_k"] = options.recognition.top_k;
+  j["query"] = {{"min_distance", options.query.min_distance},
+                {"max_distance", options.query.max_distance},
+                {"max_off_axis", options.query.max_off_axis},
+                {"depth_noise", options.query.depth_noise},
+                {"max_occlusion", options.query.max_occlusion},
+                {"random_roll", options.query.random_roll}};
+  j["model_top1"] = ModelTop1();
+  j["model_topk"] = ModelTopK();
+  j["class_top1"] = ClassTop1();
+  j["class_topk"] = ClassTopK();
+  j["median_viewpoint_error_deg"] = Number(MedianViewpointErrorDeg());
+  j["median_rotation_error_deg"] = Number(MedianRotationErrorDeg());
+  j["median_translation_error_mm"] = Number(MedianTranslationErrorMm());
+  j["median_adds_over_diameter"] = Number(MedianAddsOverDiameter());
+  j["adds_threshold"] = options.adds_fraction;
+  j["adds_success"] = AddsSuccess();
+  j["rotation_threshold_deg"] = options.rotation_threshold_deg;
+  j["rotation_success"] = RotationSuccess();
+  j["flagged_fraction_mean"] = Number(MeanFlaggedFraction());
+  j["flagged_fraction_max"] = MaxFlaggedFraction();
+  j["timing_ms_median_cpu"] = {{"preprocess", t.preprocess_cpu}, {"features", t.features_cpu},
+                               {"coarse", t.coarse_cpu},         {"fine", t.fine_cpu},
+                               {"pose", t.pose_cpu},             {"total", t.total_cpu}};
+  j["timing_ms_p95_total_cpu"] = Number(P95TotalMs());
+  j["skipped_models"] = skipped_models;
+  nlohmann::json list = nlohmann::json::array();
+  for (const QueryOutcome& o : outcomes) {
+    nlohmann::json q;
+    q["truth_model"] = o.truth_model;
+    q["truth_class"] = o.truth_class;
+    q["truth_view_deg"] = {{"theta", o.truth_viewpoint.theta * kRadToDeg},
+                           {"phi", o.truth_viewpoint.phi * kRadToDeg}};
+    q["distance"] = o.distance;
+    q["occluded_fraction"] = o.occluded_fraction;
+    q["points"] = o.cloud_points;
+    if (!o.error.empty()) q["error"] = o.error;
+    q["model"] = o.predicted_model;
+    q["class"] = o.predicted_class;
+    q["model_top1"] = o.model_top1;
+    q["model_topk"] = o.model_topk;
+    q["class_top1"] = o.class_top1;
+    q["class_topk"] = o.class_topk;
+    q["refined"] = o.refined;
+    q["score"] = o.score;
+    q["viewpoint_error_deg"] = Number(o.viewpoint_error_deg);
+    q["rotation_error_deg"] = Number(o.rotation_error_deg);
+    q["translation_error_m"] = Number(o.translation_error_m);
+    q["adds_over_diameter"] = Number(o.adds_over_diameter);
+    q["flagged_fraction"] = o.flagged_fraction;
+    q["total_ms_cpu"] = o.timing.total_cpu;
+    list.push_back(std::move(q));
+  }
+  j["outcomes"] = std::move(list);
+  return j.dump(1);
+}
+
+void WriteEvalReport(const EvalReport& report, const std::string& out_dir) {
+  std::error_code ec;
+  std::filesystem::create_directories(out_dir, ec);
+  SOPE_CHECK(!ec, "cannot create {}: {}", out_dir, ec.message());
+  WriteFileAtomic(out_dir + "/report.md", report.ToMarkdown());
+  WriteFileAtomic(out_dir + "/report.json", report.ToJson() + "\n");
+  std::vector<std::string> labels;
+  const std::vector<std::vector<int>> counts = report.Confusion(&labels);
+  const bool instance = report.options.protocol == EvalProtocol::kInstance;
+  WriteImageAtomic(out_dir + "/confusion.png",
+                   DrawConfusionMatrix(counts, labels,
+                                       fmt::format("{} protocol, {}: {} top-1 {}",
+                                                   ToString(report.options.protocol),
+                                                   report.options.method_name,
+                                                   instance ? "model" : "class",
+                                                   Percent(instance ? report.ModelTop1()
+                                                                    : report.ClassTop1()))));
+  std::vector<double> errors = Defined(report.outcomes, instance
+                                                            ? &QueryOutcome::rotation_error_deg
+                                                            : &QueryOutcome::viewpoint_error_deg);
+  WriteImageAtomic(
+      out_dir + "/pose_errors.png",
+      DrawHistogram(errors, 0.0, 30.0, 30,
+                    fmt::format("{} error of the first suggestion ({}, {} queries)",
+                                instance ? "rotation" : "viewpoint", report.options.method_name,
+                                errors.size()),
+                    instance ? "rotation error modulo symmetry (deg)" : "viewpoint error (deg)",
+                    report.options.rotation_threshold_deg));
+}
+
+}  // namespace sope
