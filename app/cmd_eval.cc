@@ -70,6 +70,9 @@ int RunEval(int argc, char** argv) {
   double empty_weight = -1.0;
   app.add_option("--empty-weight", empty_weight,
                  "Verification: weight of model points with no query point on their ray");
+  double ranking_penalty = -1.0;
+  app.add_option("--ranking-penalty", ranking_penalty,
+                 "Re-ranking key: alignment score − this × ranking distance");
   bool no_rerank = false;
   app.add_flag("--no-rerank", no_rerank,
                "Keep the fine-stage order (no re-ranking by the alignment score)");
@@ -102,6 +105,7 @@ int RunEval(int argc, char** argv) {
   if (rank_all_views) options.recognition.rank_all_views_of_candidates = true;
   if (!grouping.empty()) options.recognition.grouping = SuggestionGroupingFromString(grouping);
   if (empty_weight >= 0.0) options.recognition.pose.empty_weight = empty_weight;
+  if (ranking_penalty >= 0.0) options.recognition.ranking_penalty = ranking_penalty;
   if (no_rerank) options.recognition.rerank_by_alignment = false;
   if (flag_fraction >= 0.0) options.recognition.flag_fraction = flag_fraction;
   options.Check();

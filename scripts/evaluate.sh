@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Reproduces the recogniser's evaluation figures (README "Recognition"): both protocols,
+# our method beside the thesis preset. Heavy (~20 min on 2 cores): not part of CI.
+#   scripts/evaluate.sh [SOPE] [OUT] [DATA]
+set -euo pipefail
+sope=${1:-build/app/sope}
+out=${2:-out/eval}
+data=${3:-../shared/data}
+mkdir -p "$out"
+
+# Class protocol: 8 training instances of each of the 10 procedural classes (seeds 100–107)
+# in the database, 3 unseen instances per class (seeds 1000–1002) as queries.
+[ -d "$out/train" ] || "$sope" objects --instances 8 --seed 100 --out "$out/train"
+[ -d "$out/held_out" ] || "$sope" objects --instances 3 --seed 1000 --out "$out/held_out"
+[ -f "$out/class.sopedb" ] || "$sope" build-db --models "$out/train" --views 150 --out "$out/class.sopedb"
+[ -f "$out/class_thesis.sopedb" ] || "$sope" build-db --models "$out/train" --preset thesis --out "$out/class_thesis.sopedb"
+"$sope" eval --db "$out/class.sopedb" --models "$out/held_out" --queries-per-model 6 \
+  --grouping class --out "$out/class_sope"
+"$sope" eval --db "$out/class_thesis.sopedb" --models "$out/held_out" --queries-per-model 6 \
+  --method thesis --grouping class --out "$out/class_thesis"
+
+# Instance protocol on the shared meshes (YCB + classic), when present.
+if [ -d "$data/meshes" ]; then
+  [ -f "$out/instance.sopedb" ] || "$sope" build-db --models "$data/meshes" --out "$out/instance.sopedb"
+  [ -f "$out/instance_thesis.sopedb" ] || "$sope" build-db --models "$data/meshes" --preset thesis --out "$out/instance_thesis.sopedb"
+  for occlusion in 0.25 0; do
+    "$sope" eval --db "$out/instance.sopedb" --queries-per-model 10 --occlusion $occlusion \
+      --out "$out/instance_sope_occ$occlusion"
+    "$sope" eval --db "$out/instance_thesis.sopedb" --queries-per-model 10 --method thesis \
+      --occlusion $occlusion --out "$out/instance_thesis_occ$occlusion"
+  done
+else
+  echo "no $data/meshes: instance protocol skipped"
+fi
+echo "reports: $out/*/report.md"
