@@ -251,6 +251,11 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
         }
         outcome.model_topk |= same_model;
         outcome.class_topk |= same_class;
+        const bool truth = options.protocol == EvalProtocol::kInstance ? same_model : same_class;
+        if (truth && outcome.truth_rank < 0) {
+          outcome.truth_rank = static_cast<int>(s);
+          outcome.truth_score = suggestion.score;
+        }
       }
       // Viewpoint: where the estimated pose puts the camera, seen from the suggested
       // model's centre, against the truth (modulo the query model's symmetries).
@@ -547,6 +552,8 @@ std::string EvalReport::ToJson() const {
     q["class_topk"] = o.class_topk;
     q["refined"] = o.refined;
     q["score"] = o.score;
+    q["truth_rank"] = o.truth_rank;
+    q["truth_score"] = o.truth_score;
     q["viewpoint_error_deg"] = Number(o.viewpoint_error_deg);
     q["rotation_error_deg"] = Number(o.rotation_error_deg);
     q["translation_error_m"] = Number(o.translation_error_m);

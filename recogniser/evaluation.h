@@ -87,6 +87,11 @@ struct QueryOutcome {
   bool class_top1 = false, class_topk = false;
   bool refined = false;
   double score = 0.0;
+  // The true model's (instance) or class's (class) first place among the suggestions
+  // (0 = first, −1 = absent) and that suggestion's score: shows whether a miss was a
+  // close call.
+  int truth_rank = -1;
+  double truth_score = 0.0;
   // NaN when not applicable (see the header comment).
   double viewpoint_error_deg;
   double rotation_error_deg;
