@@ -1,12 +1,20 @@
 // sope calibrate --frames DIR [DIR...] --board COLSxROWSxSQUARE_M --out CAL.yaml
+// sope calibrate --camera /dev/videoN|virtual --board ... [--record DIR] --out CAL.yaml
 #include <algorithm>
+#include <cstdio>
 #include <filesystem>
+#include <iostream>
 
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include "app/cli_util.h"
 #include "app/commands.h"
+#include "app/live_rig.h"
 #include "app/pipeline_flags.h"
+#include "capture/rig_session.h"
+#include "simulator/board_sequence.h"
+#include "simulator/virtual_rig.h"
 #include "calibration/calibration_report.h"
 #include "calibration/rig_calibrator.h"
 #include "core/error.h"
@@ -45,6 +53,60 @@ std::vector<std::string> ExpandFrameSetDirectories(const std::vector<std::string
   return directories;
 }
 
+// Live capture (--camera): one pattern sequence per board pose, each recorded as a frame
+// set `record/view_NNN` (atomically). A real camera waits for Enter on stdin before each
+// pose ("q" or end of input finishes); the virtual rig has no board to hold up, so it
+// scripts one: `virtual_views` poses drawn like `sope simulate --board` (its true
+// calibration is written to record/calibration_true.yaml). Returns the view directories.
+std::vector<std::string> CaptureBoardViews(const std::string& camera, const BoardSpec& board,
+                                           const RigCalibration& sizes,
+                                           const cli::LiveRigFlags& live_flags,
+                                           const std::string& record, int virtual_views) {
+  const bool is_virtual = camera == "virtual";
+  const cli::InterruptFlag interrupt;
+  cli::LiveRig rig = cli::OpenLiveRig(camera, sizes, live_flags);
+  RigSession session(rig.GetDisplay(), rig.GetCamera(),
+                     live_flags.SessionOptions(interrupt.flag()));
+  PatternOptions patterns;  // white, black, Gray code in x and y with inverses
+  patterns.projector_width = sizes.projector.width;
+  patterns.projector_height = sizes.projector.height;
+  const std::vector<Pattern> sequence = GeneratePatterns(patterns);
+  std::vector<Rigid3d> poses;
+  BoardSequenceOptions board_options;
+  if (is_virtual) {
+    board_options.num_views = virtual_views;
+    poses = SampleBoardPoses(sizes, board, board_options);
+    WriteRigCalibration(JoinPath(record, "calibration_true.yaml"), sizes);
+    spdlog::info("virtual rig: no board to hold up; {} scripted board poses", poses.size());
+  }
+  std::vector<std::string> directories;
+  for (int index = 0;; ++index) {
+    if (is_virtual) {
+      if (index >= static_cast<int>(poses.size())) break;
+      Scene scene;
+      scene.objects.push_back(MakeCheckerboardObject(board, poses[index], board_options));
+      rig.virtual_rig.rig->SetScene(scene);
+    } else {
+      std::fprintf(stderr, "pose %d: hold the board still in view, then Enter to capture "
+                   "(q + Enter to finish, %zu captured): ", index, directories.size());
+      std::fflush(stderr);
+      std::string line;
+      if (!std::getline(std::cin, line) || line == "q" || line == "Q") {
+        std::fputs("\n", stderr);
+        break;
+      }
+    }
+    SOPE_CHECK(!interrupt.flag()->load(), "interrupted");
+    const std::string directory = JoinPath(record, BoardViewName(index));
+    cli::Progress progress(fmt::format("pose {}: capturing", index), sequence.size());
+    session.Record(sequence, directory, nullptr,
+                   [&](size_t done, size_t) { progress.Update(done); });
+    directories.push_back(directory);
+    spdlog::info("pose {} -> {}", index, directory);
+  }
+  return directories;
+}
+
 }  // namespace
 
 int RunCalibrate(int argc, char** argv) {
@@ -63,11 +125,31 @@ int RunCalibrate(int argc, char** argv) {
   CalibrationOptions options;
   cli::DecoderFlags decoder_flags;
   cli::LoggingFlags logging;
-  app.add_option("--frames", frame_arguments,
-                 "Frame sets (directories with frames.json), or directories whose "
-                 "subdirectories are frame sets (e.g. what `sope simulate --board` wrote)")
-      ->required()
-      ->expected(1, -1);
+  // Exactly one source: a usage error (exit 2) otherwise.
+  CLI::App* source = app.add_option_group("source", "--frames or --camera");
+  source->require_option(1);
+  CLI::Option* frames_option =
+      source->add_option("--frames", frame_arguments,
+                     "Frame sets (directories with frames.json), or directories whose "
+                     "subdirectories are frame sets (e.g. what `sope simulate --board` wrote)")
+          ->expected(1, -1);
+  std::string live_camera, record_dir, projector_size, camera_size;
+  int virtual_views = 12;
+  cli::LiveRigFlags live_flags;
+  source->add_option("--camera", live_camera,
+                 "Capture live instead: /dev/videoN (V4L2 camera + projector window; Enter "
+                 "on stdin captures a board pose, q finishes) or virtual (scripted board poses "
+                 "on the virtual rig)")
+      ->excludes(frames_option);
+  app.add_option("--record", record_dir,
+                 "--camera: where the board views are recorded (DIR/view_NNN frame sets; "
+                 "default CAL.views next to --out)");
+  app.add_option("--projector", projector_size,
+                 "--camera /dev/videoN: projector size WxH (one pattern pixel per projector "
+                 "pixel)");
+  app.add_option("--camera-size", camera_size, "--camera /dev/videoN: camera image size WxH");
+  app.add_option("--views", virtual_views, "--camera virtual: scripted board poses")
+      ->capture_default_str();
   app.add_option("--board", board_text,
                  "Checkerboard COLSxROWSxSQUARE_M: COLS x ROWS = INNER corners (OpenCV "
                  "patternSize; a board of 10x7 squares is 9x6), square side in metres, "
@@ -102,6 +184,7 @@ int RunCalibrate(int argc, char** argv) {
                  "Never drop views with an RMS below this, pixels")
       ->capture_default_str();
   decoder_flags.Add(app);
+  live_flags.Add(*app.add_option_group("live capture (--camera)"));
   logging.Add(app);
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
@@ -116,7 +199,25 @@ int RunCalibrate(int argc, char** argv) {
   options.num_threads = options.decoder.num_threads;
   options.Check();
 
-  const std::vector<std::string> directories = ExpandFrameSetDirectories(frame_arguments);
+  std::vector<std::string> directories;
+  if (live_camera.empty()) {
+    directories = ExpandFrameSetDirectories(frame_arguments);
+  } else {
+    RigCalibration sizes = DefaultRigCalibration();  // the virtual rig's true calibration
+    if (live_camera != "virtual") {
+      SOPE_CHECK(!projector_size.empty() && !camera_size.empty(),
+                 "--camera {} needs --projector WxH and --camera-size WxH", live_camera);
+      cli::ParseSize(projector_size, "--projector", &sizes.projector.width,
+                     &sizes.projector.height);
+      cli::ParseSize(camera_size, "--camera-size", &sizes.camera.width, &sizes.camera.height);
+    }
+    SOPE_CHECK(virtual_views >= 3, "--views must be ≥ 3, got {}", virtual_views);
+    if (record_dir.empty()) record_dir = CalibrationSidecarPath(out, ".views");
+    directories = CaptureBoardViews(live_camera, board, sizes, live_flags, record_dir,
+                                    virtual_views);
+    SOPE_CHECK(directories.size() >= 3, "{} board pose(s) captured; calibration needs at least "
+               "3 (better 10-20 in varied tilts)", directories.size());
+  }
   RigCalibrator calibrator(board, options);
   {
     cli::Progress progress("finding the board", directories.size());

@@ -13,6 +13,7 @@ int RunProject(int argc, char** argv);
 int RunCalibrate(int argc, char** argv);
 int RunBuildDb(int argc, char** argv);
 int RunRecognise(int argc, char** argv);
+int RunScanAndRecognise(int argc, char** argv);
 int RunEval(int argc, char** argv);
 int RunObjects(int argc, char** argv);
 

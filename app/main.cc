@@ -29,6 +29,8 @@ constexpr Command kCommands[] = {
     {"calibrate", sope::RunCalibrate, "calibrate camera and projector from checkerboard frame sets"},
     {"build-db", sope::RunBuildDb, "build a recognition database from a models directory"},
     {"recognise", sope::RunRecognise, "recognise an object in a point cloud and estimate its pose"},
+    {"scan-and-recognise", sope::RunScanAndRecognise,
+     "scan, recognise the object and estimate its pose (live, replayed or virtual)"},
     {"objects", sope::RunObjects, "write procedural household objects as a models directory"},
     {"eval", sope::RunEval, "evaluate the recogniser on synthetic queries with ground truth"},
 };
