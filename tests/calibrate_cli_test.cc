@@ -23,42 +23,18 @@ namespace sope {
 namespace {
 namespace fs = std::filesystem;
 
-struct SopeRun {
-  int exit_code = -1;
-  std::string out;
-  std::string err;
-};
-
-std::string Quote(const std::string& text) { return "'" + text + "'"; }
+using SopeRun = testing::CommandRun;
+using testing::Quote;
 
 SopeRun Sope(const std::string& arguments, const testing::ScratchDir& scratch) {
-  const std::string out_file = scratch.File(".stdout"), err_file = scratch.File(".stderr");
-  const std::string command =
-      std::string(SOPE_BINARY) + " " + arguments + " >" + Quote(out_file) + " 2>" + Quote(err_file);
-  const int status = std::system(command.c_str());
-  SopeRun run;
-  run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream out(out_file), err(err_file);
-  std::stringstream out_text, err_text;
-  out_text << out.rdbuf();
-  err_text << err.rdbuf();
-  run.out = out_text.str();
-  run.err = err_text.str();
-  return run;
+  return testing::RunCommand(SOPE_BINARY, arguments, scratch);
 }
 
 int Lines(const std::string& text) {
   return static_cast<int>(std::count(text.begin(), text.end(), '\n'));
 }
 
-// Exactly one line on stderr, naming the command, containing `needle`; non-zero exit.
-void ExpectOneLineError(const SopeRun& run, const std::string& command, const std::string& needle) {
-  EXPECT_NE(run.exit_code, 0);
-  EXPECT_EQ(Lines(run.err), 1) << run.err;
-  EXPECT_EQ(run.err.rfind("sope " + command + ": error: ", 0), 0u) << run.err;
-  EXPECT_NE(run.err.find(needle), std::string::npos)
-      << "expected '" << needle << "' in: " << run.err;
-}
+using testing::ExpectOneLineError;
 
 // A small rig (fast to render): 320×240 camera, 256×192 projector 0.15 m to its right.
 RigCalibration SmallRig() {

@@ -188,28 +188,13 @@ TEST(ScanRecognitionScene, SegmentationBandSeparatesObjectAndBackdrop) {
 // ---------------------------------------------------------------------------------------
 // The command line.
 
-struct SopeRun {
-  int exit_code = -1;
-  std::string out, err;
-};
+using SopeRun = testing::CommandRun;
+using testing::Quote;
 
-std::string Quote(const std::string& text) { return "'" + text + "'"; }
-
+// Runs `prefix sope arguments` through the shell.
 SopeRun Sope(const std::string& arguments, const testing::ScratchDir& scratch,
              const std::string& prefix = "") {
-  const std::string out_file = scratch.File(".stdout"), err_file = scratch.File(".stderr");
-  const std::string command = prefix + " " + std::string(SOPE_BINARY) + " " + arguments + " >" +
-                              Quote(out_file) + " 2>" + Quote(err_file);
-  const int status = std::system(command.c_str());
-  SopeRun run;
-  run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream out(out_file), err(err_file);
-  std::stringstream out_text, err_text;
-  out_text << out.rdbuf();
-  err_text << err.rdbuf();
-  run.out = out_text.str();
-  run.err = err_text.str();
-  return run;
+  return testing::RunCommand(SOPE_BINARY, arguments, scratch, prefix);
 }
 
 void ExpectOneLineError(const SopeRun& run, const std::string& needle) {

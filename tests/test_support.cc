@@ -1,10 +1,17 @@
 #include "tests/test_support.h"
 
+#include <sys/wait.h>
 #include <unistd.h>
+
+#include <algorithm>
+#include <fstream>
+#include <sstream>
 
 #include <cstdlib>
 #include <filesystem>
 #include <random>
+
+#include <gtest/gtest.h>
 
 namespace sope {
 namespace testing {
@@ -36,6 +43,34 @@ ScratchDir::ScratchDir() {
 ScratchDir::~ScratchDir() {
   std::error_code ignored;
   fs::remove_all(path_, ignored);
+}
+
+std::string Quote(const std::string& text) { return "'" + text + "'"; }
+
+CommandRun RunCommand(const std::string& binary, const std::string& arguments,
+                      const ScratchDir& scratch, const std::string& prefix) {
+  const std::string out_file = scratch.File(".stdout"), err_file = scratch.File(".stderr");
+  const std::string command = prefix + " " + binary + " " + arguments + " >" + Quote(out_file) +
+                              " 2>" + Quote(err_file);
+  const int status = std::system(command.c_str());
+  CommandRun run;
+  run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream out(out_file), err(err_file);
+  std::stringstream out_text, err_text;
+  out_text << out.rdbuf();
+  err_text << err.rdbuf();
+  run.out = out_text.str();
+  run.err = err_text.str();
+  return run;
+}
+
+void ExpectOneLineError(const CommandRun& run, const std::string& command,
+                        const std::string& needle) {
+  EXPECT_NE(run.exit_code, 0);
+  EXPECT_EQ(std::count(run.err.begin(), run.err.end(), '\n'), 1) << run.err;
+  EXPECT_EQ(run.err.rfind("sope " + command + ": error: ", 0), 0u) << run.err;
+  EXPECT_NE(run.err.find(needle), std::string::npos)
+      << "expected '" << needle << "' in: " << run.err;
 }
 
 }  // namespace testing

@@ -24,6 +24,23 @@ class ScratchDir {
   std::string path_;
 };
 
+// What a command run through the shell printed, and how it ended.
+struct CommandRun {
+  int exit_code = -1;  // −1: killed by a signal
+  std::string out;
+  std::string err;
+};
+// Single-quoted for the shell.
+std::string Quote(const std::string& text);
+// Runs `prefix binary arguments` through the shell, stdout and stderr captured in files of
+// `scratch`.
+CommandRun RunCommand(const std::string& binary, const std::string& arguments,
+                      const ScratchDir& scratch, const std::string& prefix = "");
+// Expects what every failing `sope` command must do: a non-zero exit and exactly one line
+// on stderr, "sope <command>: error: …", containing `needle`.
+void ExpectOneLineError(const CommandRun& run, const std::string& command,
+                        const std::string& needle);
+
 }  // namespace testing
 }  // namespace sope
 
