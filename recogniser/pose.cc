@@ -63,6 +63,8 @@ void PoseOptions::Check() const {
   SOPE_CHECK(gate_iterations >= 1, "pose: gate_iterations must be ≥ 1");
   SOPE_CHECK(final_window >= 0 && initial_window >= final_window,
              "pose: need 0 ≤ final_window ≤ initial_window");
+  SOPE_CHECK(coverage_grazing_cos >= 0.0 && coverage_grazing_cos <= 1.0,
+             "pose: coverage_grazing_cos must be in [0, 1], got {}", coverage_grazing_cos);
   SOPE_CHECK(normal_min_cos >= -1.0 && normal_min_cos <= 1.0,
              "pose: normal_min_cos must be in [-1, 1], got {}", normal_min_cos);
   SOPE_CHECK(point_to_point_weight >= 0.0, "pose: point_to_point_weight must be ≥ 0");
@@ -627,7 +629,14 @@ AlignmentScore ScoreAlignment(const std::vector<Eigen::Vector3f>& model_points,
   const float reach2 = lateral * lateral + inlier * inlier;
   const int window = std::max(
       1, static_cast<int>(std::ceil(lateral / std::max(model_spacing, query.spacing))));
-  int covered = 0;
+  // Query points on surfaces seen nearly edge-on count less: weight min(1, cos(incidence)
+  // / coverage_grazing_cos). The database view nearest to the pose is up to about half
+  // the grid spacing away, so a face within ~the grid spacing of edge-on in the query may
+  // be back-facing in that view and missing from its cloud; yet the voxel grid keeps as
+  // many points of such a face as of a frontal one of the same area. Counted in full, it
+  // cost the right box up to a fifth of its coverage and let a larger wrong model that
+  // happens to reach it win.
+  double covered = 0.0, total = 0.0;
   const size_t samples =
       coverage_samples > 0
           ? std::min(query.coverage_sample.size(), static_cast<size_t>(coverage_samples))
@@ -635,12 +644,19 @@ AlignmentScore ScoreAlignment(const std::vector<Eigen::Vector3f>& model_points,
   for (size_t k = 0; k < samples; ++k) {
     const int index = query.coverage_sample[k];
     const Eigen::Vector3f& q = query.points[index];
+    const float q_norm = q.norm();
+    const double incidence_cos =
+        q_norm > 0.0f ? std::abs(query.normals[index].dot(q)) / q_norm : 1.0;
+    const double weight = options.coverage_grazing_cos > 0.0
+                              ? std::min(1.0, incidence_cos / options.coverage_grazing_cos)
+                              : 1.0;
+    total += weight;
     float d2;
     const int j = model_grid.Nearest(q, query.normals[index], min_cos, window, reach2, &d2);
     if (j < 0) continue;
-    if (std::abs((q - visible_points[j]).dot(visible_normals[j])) < inlier) ++covered;
+    if (std::abs((q - visible_points[j]).dot(visible_normals[j])) < inlier) covered += weight;
   }
-  score.query_coverage = static_cast<double>(covered) / samples;
+  score.query_coverage = total > 0.0 ? covered / total : 0.0;
   score.score = score.model_fit * score.query_coverage;
   return score;
 }

@@ -28,7 +28,8 @@
 //  4. verification: visible model points classified against the query along their rays
 //     (fit within the inlier distance, query surface seen *behind* the model point =
 //     free-space violation, in front = occluded, nothing = empty) and the fraction of
-//     query points explained by the model; the score combines them (AlignmentScore).
+//     query points explained by the model (points on faces seen nearly edge-on count
+//     less); the score combines them (AlignmentScore).
 #pragma once
 
 #include <vector>
@@ -139,6 +140,11 @@ struct PoseOptions {
   double violation_weight = 1.0;
   // Query points sampled for the coverage measure.
   int coverage_samples = 400;
+  // Coverage weight of a query point: min(1, cos(incidence angle) / coverage_grazing_cos),
+  // so faces seen within ≈ asin(coverage_grazing_cos) of edge-on count less (0.2: 11.5°,
+  // about the spacing of a 300-view grid; such faces may be missing from the nearest
+  // database view's cloud). 0 counts every point fully.
+  double coverage_grazing_cos = 0.2;
 
   void Check() const;
 };
@@ -188,7 +194,9 @@ struct AlignmentScore {
   int occluded = 0;    // … behind it
   int empty = 0;       // … with no query point on their ray
   double model_fit = 0.0;       // fitting / (fitting + w_v·violations + w_e·empty)
-  double query_coverage = 0.0;  // fraction of sampled query points explained
+  // Fraction of the sampled query points explained, those on faces seen nearly edge-on
+  // weighted down (PoseOptions::coverage_grazing_cos).
+  double query_coverage = 0.0;
   double rms = 0.0;             // 3-D distance of the fitting points, metres
   // model_fit · query_coverage, in [0, 1]: how well model and query explain each other.
   double score = 0.0;

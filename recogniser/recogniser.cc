@@ -177,6 +177,9 @@ void RecognitionOptions::Check() const {
   SOPE_CHECK(pose_view_separation >= 0.0 && signature_views >= 0 && signature_weight >= 0.0,
              "recognition: pose_view_separation, signature_views and signature_weight must be "
              "≥ 0");
+  SOPE_CHECK(widen_below_score >= 0.0 && widen_models >= 0 && widen_views_per_model >= 1 &&
+                 widen_roll_hypotheses >= 1 && widen_refine_candidates >= 0,
+             "recognition: invalid widened search settings");
   pose.Check();
 }
 
@@ -351,135 +354,196 @@ RecognitionResult Recogniser::Recognise(const PointCloud& cloud,
   std::vector<Posed> posed;
   if (options.pose_models > 0 && !ranked.empty()) {
     const PoseQuery& pose_query = get_pose_query();
-    // The short ICP reaches the final gate two iterations before it ends, so its score
-    // is taken at a settled pose.
-    PoseOptions quick_options = options.pose;
-    quick_options.gate_iterations = std::max(1, options.quick_iterations - 2);
-
-    // Candidate models: the first pose_models distinct models of the fine ranking.
-    std::vector<int> models;
     std::unordered_map<int, int> flagged_rank;  // view → index into `ranked`
     for (size_t i = 0; i < ranked.size(); ++i) {
       flagged_rank.emplace(ranked[i].view, static_cast<int>(i));
-      const int model = db.view(ranked[i].view).model;
-      if (static_cast<int>(models.size()) < options.pose_models &&
-          std::find(models.begin(), models.end(), model) == models.end()) {
-        models.push_back(model);
-      }
     }
+    // The fine-stage distances of every view of `model_index` (flagged ones as ranked).
+    auto all_views_of = [&](int model_index) {
+      const ModelRecord& model = db.model(model_index);
+      std::vector<Ranked> views;
+      views.reserve(model.num_views);
+      for (int v = model.first_view; v < model.first_view + model.num_views; ++v) {
+        const auto it = flagged_rank.find(v);
+        if (it != flagged_rank.end()) {
+          views.push_back(ranked[it->second]);
+        } else {
+          views.push_back(measure(v, HammingDistance(code.code(0), db.index().code(v),
+                                                     db.index().words_per_code())));
+        }
+      }
+      return views;
+    };
 
     // Screening: per candidate model, its views ranked (all of them, or the flagged ones),
-    // up to pose_views_per_model of them at least pose_view_separation apart (neighbouring
+    // up to views_per_model of them at least pose_view_separation apart (neighbouring
     // views would converge to the same pose); roll hypotheses and a short ICP on a prefix
     // of each view's cloud; the best hypothesis per view is kept.
     const double min_separation_cos = std::cos(options.pose_view_separation);
+    auto screen = [&](const std::vector<int>& models, int views_per_model, bool rank_all,
+                      const PoseOptions& hypothesis_options, std::vector<Posed>* out) {
+      // The short ICP reaches the final gate two iterations before it ends, so its score
+      // is taken at a settled pose.
+      PoseOptions quick_options = options.pose;
+      quick_options.gate_iterations = std::max(1, options.quick_iterations - 2);
+      for (int model_index : models) {
+        std::vector<Ranked> views;
+        if (rank_all) {
+          views = all_views_of(model_index);
+        } else {
+          for (const Ranked& r : ranked) {
+            if (db.view(r.view).model == model_index) views.push_back(r);
+          }
+        }
+        std::sort(views.begin(), views.end(), by_combined);
+        std::vector<Eigen::Vector3d> directions;
+        for (const Ranked& r : views) {
+          if (static_cast<int>(directions.size()) >= views_per_model) break;
+          const ViewRecord& view = db.view(r.view);
+          const Eigen::Vector3d direction = view.viewpoint.Direction();
+          bool near = false;
+          for (const Eigen::Vector3d& d : directions) {
+            near |= d.dot(direction) > min_separation_cos;
+          }
+          if (near) continue;
+          directions.push_back(direction);
+          const PointCloud& cloud = clouds.Get(r.view);
+          const std::vector<PoseHypothesis> hypotheses =
+              InitialPoses(view.cam_from_model, view.centroid_in_model, view.radius,
+                           cloud.points, cloud.normals, pose_query, hypothesis_options);
+          const size_t quick_n = std::min<size_t>(cloud.size(), options.quick_points);
+          const std::vector<Eigen::Vector3f> quick_points(cloud.points.begin(),
+                                                          cloud.points.begin() + quick_n);
+          const std::vector<Eigen::Vector3f> quick_normals(cloud.normals.begin(),
+                                                           cloud.normals.begin() + quick_n);
+          const float quick_spacing =
+              view.cloud_spacing *
+              std::sqrt(static_cast<float>(cloud.size()) / std::max<size_t>(1, quick_n));
+          Posed candidate;
+          candidate.ranked = r;
+          candidate.view = r.view;
+          candidate.model = model_index;
+          bool first = true;
+          for (const PoseHypothesis& hypothesis : hypotheses) {
+            const IcpResult icp = RefinePose(quick_points, quick_normals, pose_query,
+                                             hypothesis.canonical_from_model, quick_options,
+                                             options.quick_iterations);
+            const AlignmentScore alignment = ScoreAlignment(
+                quick_points, quick_normals, quick_spacing, pose_query, icp.canonical_from_model,
+                options.pose, options.quick_coverage_samples);
+            if (first || alignment.score > candidate.alignment.score) {
+              candidate.canonical_from_model = icp.canonical_from_model;
+              candidate.roll = hypothesis.roll.roll;
+              candidate.icp = icp;
+              candidate.alignment = alignment;
+              first = false;
+            }
+          }
+          if (!first) out->push_back(std::move(candidate));
+        }
+      }
+      std::stable_sort(out->begin(), out->end(), [](const Posed& a, const Posed& b) {
+        return a.alignment.score > b.alignment.score;
+      });
+    };
+
+    // Refinement of the best hypothesis of the best `count` models of `candidates` (sorted
+    // by their short-ICP score): ICP with the stored view nearest to the current pose (so
+    // model and query show the same side), repeated once the pose has settled, and the
+    // full verification with that view's cloud. Returns the best verification score.
+    PoseOptions refine_options = options.pose;
+    refine_options.gate_iterations = 2;
+    auto refine = [&](std::vector<Posed>* candidates, int count) {
+      std::vector<int> refined_models;
+      double best_score = 0.0;
+      for (Posed& candidate : *candidates) {
+        if (static_cast<int>(refined_models.size()) >= count) break;
+        if (std::find(refined_models.begin(), refined_models.end(), candidate.model) !=
+            refined_models.end()) {
+          continue;
+        }
+        refined_models.push_back(candidate.model);
+        const int quick = candidate.icp.iterations;
+        int iterations = 0;
+        for (int pass = 0; pass < options.refine_passes; ++pass) {
+          const int nearest =
+              NearestModelView(db, candidate.model, candidate.canonical_from_model);
+          if (pass > 0 && nearest == candidate.view) break;
+          candidate.view = nearest;
+          const PointCloud& cloud = clouds.Get(nearest);
+          candidate.icp = RefinePose(cloud.points, cloud.normals, pose_query,
+                                     candidate.canonical_from_model, refine_options,
+                                     options.refine_iterations, options.refine_initial_gate);
+          candidate.canonical_from_model = candidate.icp.canonical_from_model;
+          iterations += candidate.icp.iterations;
+        }
+        candidate.icp.iterations = quick + iterations;
+        candidate.view = NearestModelView(db, candidate.model, candidate.canonical_from_model);
+        const PointCloud& cloud = clouds.Get(candidate.view);
+        candidate.alignment =
+            ScoreAlignment(cloud.points, cloud.normals, db.view(candidate.view).cloud_spacing,
+                           pose_query, candidate.canonical_from_model, options.pose);
+        candidate.refined = true;
+        best_score = std::max(best_score, candidate.alignment.score);
+      }
+      return best_score;
+    };
+
+    // Candidate models: the first pose_models distinct models of the fine ranking.
+    std::vector<int> models;
+    for (const Ranked& r : ranked) {
+      if (static_cast<int>(models.size()) >= options.pose_models) break;
+      const int model = db.view(r.view).model;
+      if (std::find(models.begin(), models.end(), model) == models.end()) {
+        models.push_back(model);
+      }
+    }
     // The screening budget is pose_models × pose_views_per_model views: with fewer
     // candidate models (a small database, a pose-only query) each gets more views.
     const int views_per_model = std::max(
         options.pose_views_per_model,
         options.pose_models * options.pose_views_per_model / std::max<int>(1, models.size()));
-    for (int model_index : models) {
-      const ModelRecord& model = db.model(model_index);
-      std::vector<Ranked> views;
-      if (options.rank_all_views_of_candidates) {
-        views.reserve(model.num_views);
-        for (int v = model.first_view; v < model.first_view + model.num_views; ++v) {
-          const auto it = flagged_rank.find(v);
-          if (it != flagged_rank.end()) {
-            views.push_back(ranked[it->second]);
-          } else {
-            views.push_back(measure(v, HammingDistance(code.code(0), db.index().code(v),
-                                                       db.index().words_per_code())));
-          }
-        }
-      } else {
-        for (const Ranked& r : ranked) {
-          if (db.view(r.view).model == model_index) views.push_back(r);
-        }
-      }
-      std::sort(views.begin(), views.end(), by_combined);
-      std::vector<Eigen::Vector3d> directions;
-      for (const Ranked& r : views) {
-        if (static_cast<int>(directions.size()) >= views_per_model) break;
-        const ViewRecord& view = db.view(r.view);
-        const Eigen::Vector3d direction = view.viewpoint.Direction();
-        bool near = false;
-        for (const Eigen::Vector3d& d : directions) near |= d.dot(direction) > min_separation_cos;
-        if (near) continue;
-        directions.push_back(direction);
-        const PointCloud& cloud = clouds.Get(r.view);
-        const std::vector<PoseHypothesis> hypotheses =
-            InitialPoses(view.cam_from_model, view.centroid_in_model, view.radius, cloud.points,
-                         cloud.normals, pose_query, options.pose);
-        const size_t quick_n = std::min<size_t>(cloud.size(), options.quick_points);
-        const std::vector<Eigen::Vector3f> quick_points(cloud.points.begin(),
-                                                        cloud.points.begin() + quick_n);
-        const std::vector<Eigen::Vector3f> quick_normals(cloud.normals.begin(),
-                                                         cloud.normals.begin() + quick_n);
-        const float quick_spacing =
-            view.cloud_spacing *
-            std::sqrt(static_cast<float>(cloud.size()) / std::max<size_t>(1, quick_n));
-        Posed candidate;
-        candidate.ranked = r;
-        candidate.view = r.view;
-        candidate.model = model_index;
-        bool first = true;
-        for (const PoseHypothesis& hypothesis : hypotheses) {
-          const IcpResult icp = RefinePose(quick_points, quick_normals, pose_query,
-                                           hypothesis.canonical_from_model, quick_options,
-                                           options.quick_iterations);
-          const AlignmentScore alignment = ScoreAlignment(
-              quick_points, quick_normals, quick_spacing, pose_query, icp.canonical_from_model,
-              options.pose, options.quick_coverage_samples);
-          if (first || alignment.score > candidate.alignment.score) {
-            candidate.canonical_from_model = icp.canonical_from_model;
-            candidate.roll = hypothesis.roll.roll;
-            candidate.icp = icp;
-            candidate.alignment = alignment;
-            first = false;
-          }
-        }
-        if (!first) posed.push_back(std::move(candidate));
-      }
-    }
-    std::stable_sort(posed.begin(), posed.end(), [](const Posed& a, const Posed& b) {
-      return a.alignment.score > b.alignment.score;
-    });
+    screen(models, views_per_model, options.rank_all_views_of_candidates, options.pose, &posed);
+    const double best_score = refine(&posed, options.refine_candidates);
 
-    // Refinement of the best hypothesis of the best models: ICP with the stored view
-    // nearest to the current pose (so model and query show the same side), repeated once
-    // the pose has settled, and the full verification with that view's cloud.
-    PoseOptions refine_options = options.pose;
-    refine_options.gate_iterations = 2;
-    std::vector<int> refined_models;
-    for (Posed& candidate : posed) {
-      if (static_cast<int>(refined_models.size()) >= options.refine_candidates) break;
-      if (std::find(refined_models.begin(), refined_models.end(), candidate.model) !=
-          refined_models.end()) {
-        continue;
+    // Widened search (see RecognitionOptions::widen_below_score): the best verification
+    // is too low to be the right model at the right pose, so the descriptors (corrupted
+    // by occlusion) probably ranked the right model or its right views too low, or the
+    // polar signature (about a centroid shifted by the occluder) gave no right roll. The
+    // verification itself is reliable there — at the true pose the true model scores
+    // ≈ 0.9 or more — so a broader hypothesis search fixes these queries: more candidate
+    // models (by their best view over the whole database), more of each one's views (all
+    // ranked), more roll hypotheses per view.
+    if (options.widen_below_score > 0.0 && best_score < options.widen_below_score &&
+        options.widen_models > 0 && options.refine_candidates > 0) {
+      std::vector<std::pair<double, int>> model_distance;  // best view's distance, model
+      std::vector<int> pool = options.restrict_to_models;
+      if (pool.empty()) {
+        pool.resize(db.num_models());
+        std::iota(pool.begin(), pool.end(), 0);
       }
-      refined_models.push_back(candidate.model);
-      const int quick = candidate.icp.iterations;
-      int iterations = 0;
-      for (int pass = 0; pass < options.refine_passes; ++pass) {
-        const int nearest = NearestModelView(db, candidate.model, candidate.canonical_from_model);
-        if (pass > 0 && nearest == candidate.view) break;
-        candidate.view = nearest;
-        const PointCloud& cloud = clouds.Get(nearest);
-        candidate.icp = RefinePose(cloud.points, cloud.normals, pose_query,
-                                   candidate.canonical_from_model, refine_options,
-                                   options.refine_iterations, options.refine_initial_gate);
-        candidate.canonical_from_model = candidate.icp.canonical_from_model;
-        iterations += candidate.icp.iterations;
+      for (int m : pool) {
+        double best = std::numeric_limits<double>::infinity();
+        for (const Ranked& r : all_views_of(m)) best = std::min(best, r.combined);
+        model_distance.emplace_back(best, m);
       }
-      candidate.icp.iterations = quick + iterations;
-      candidate.view = NearestModelView(db, candidate.model, candidate.canonical_from_model);
-      const PointCloud& cloud = clouds.Get(candidate.view);
-      candidate.alignment =
-          ScoreAlignment(cloud.points, cloud.normals, db.view(candidate.view).cloud_spacing,
-                         pose_query, candidate.canonical_from_model, options.pose);
-      candidate.refined = true;
+      std::sort(model_distance.begin(), model_distance.end());
+      std::vector<int> wide_models;
+      for (const auto& [distance, m] : model_distance) {
+        if (static_cast<int>(wide_models.size()) >= options.widen_models) break;
+        wide_models.push_back(m);
+      }
+      PoseOptions wide_hypotheses = options.pose;
+      wide_hypotheses.roll_hypotheses =
+          std::min(std::max(options.pose.roll_hypotheses, options.widen_roll_hypotheses),
+                   options.pose.angle_bins / 2);
+      std::vector<Posed> wide;
+      screen(wide_models, std::max(views_per_model, options.widen_views_per_model), true,
+             wide_hypotheses, &wide);
+      refine(&wide, options.widen_refine_candidates);
+      for (Posed& candidate : wide) posed.push_back(std::move(candidate));
     }
+
     if (options.rerank_by_alignment) {
       const double penalty = options.ranking_penalty;
       std::stable_sort(posed.begin(), posed.end(), [penalty](const Posed& a, const Posed& b) {

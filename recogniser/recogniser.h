@@ -19,7 +19,9 @@
 //     signatures, a short ICP from each and a verification score; the best hypotheses get
 //     a full ICP and are re-ranked by how well model and query explain each other
 //     (recogniser/pose.h). This verification is what makes the first suggestion reliable
-//     when several models share a look from some viewpoints.
+//     when several models share a look from some viewpoints. When even the best refined
+//     hypothesis verifies poorly, the search is widened once (more models, views, rolls;
+//     RecognitionOptions::widen_below_score).
 // The result lists the top-k suggestions (one per model by default), each with class,
 // model, viewpoint, scores and the 6-DoF pose cam_from_model.
 #pragma once
@@ -101,6 +103,23 @@ struct RecognitionOptions {
   int refine_passes = 2;
   int refine_iterations = 12;
   double refine_initial_gate = 0.015;
+  // Widened search: when the best verification score after refinement is below
+  // widen_below_score (the right model at the right pose scores ≈ 0.9 or more, even with
+  // a quarter of it hidden), the hypotheses probably missed it — occlusion corrupts the
+  // descriptors (the right model or its right views rank too low) and the polar signature
+  // (its centroid shifts), not the verification. The pose search then runs again with the
+  // first widen_models models by their best view over the whole database (or over
+  // restrict_to_models), all views of each ranked, widen_views_per_model views per model
+  // and widen_roll_hypotheses rolls per view, and the best hypotheses of
+  // widen_refine_candidates models are refined; all refined hypotheses compete in the
+  // final order. Costs time only on such queries (instance evaluation: median time
+  // unchanged, 95th percentile ≈ 13 → 23 ms). 0 widen_below_score or widen_models, or 0
+  // refine_candidates: off.
+  double widen_below_score = 0.85;
+  int widen_models = 12;
+  int widen_views_per_model = 8;
+  int widen_roll_hypotheses = 3;
+  int widen_refine_candidates = 6;
   // Final order: by alignment score (verification), ties and unposed suggestions by the
   // ranking distance. false keeps the fine-stage order.
   bool rerank_by_alignment = true;
