@@ -55,6 +55,7 @@ int RunScan(int argc, char** argv) {
   ScanOptions options;
   options.decoder = decoder_flags.ToOptions();
   options.triangulation = triangulation_flags.ToOptions();
+  options.triangulation.num_threads = options.decoder.num_threads;
   SOPE_CHECK(!frames_dir.empty() || !camera.empty(), "one of --frames or --camera is required");
   SOPE_CHECK(record_dir.empty() || !camera.empty(), "--record needs --camera");
   FrameSet frames;

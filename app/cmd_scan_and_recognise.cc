@@ -290,6 +290,7 @@ int RunScanAndRecognise(int argc, char** argv) {
   ScanOptions scan_options;
   scan_options.decoder = decoder_flags.ToOptions();
   scan_options.triangulation = triangulation_flags.ToOptions();
+  scan_options.triangulation.num_threads = scan_options.decoder.num_threads;
   scan_options.Check();
   RecognitionOptions recognition_options;
   recognition_options.top_k = top;

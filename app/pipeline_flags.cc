@@ -44,7 +44,8 @@ void DecoderFlags::Add(CLI::App& app) {
   app.add_option("--decode-mode", mode,
                  "Bit decisions: auto (inverse if present), threshold, robust (indirect light)")
       ->capture_default_str();
-  app.add_option("--threads", options.num_threads, "Decoder threads")->capture_default_str();
+  app.add_option("--threads", options.num_threads,
+                 "Threads for decoding (and triangulating, in commands that triangulate)")->capture_default_str();
 }
 
 DecoderOptions DecoderFlags::ToOptions() const {
