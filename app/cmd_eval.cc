@@ -48,6 +48,9 @@ int RunEval(int argc, char** argv) {
   app.add_option("--occlusion", options.query.max_occlusion,
                  "Largest fraction of the object hidden")
       ->capture_default_str();
+  app.add_flag("--scan-pipeline", options.through_scan,
+               "Scan every query on the virtual rig (patterns rendered, decoded, triangulated, "
+               "range band) instead of rendering its depth; no occluder; ~1 s per query");
   app.add_option("--adds", options.adds_fraction, "ADD-S threshold, fraction of the diameter")
       ->capture_default_str();
   // Tuning knobs of the recogniser (defaults: the method's).

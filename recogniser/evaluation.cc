@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <limits>
 #include <map>
+#include <memory>
 #include <random>
 
 #include <fmt/format.h>
@@ -15,7 +16,10 @@
 #include "core/file_util.h"
 #include "core/plots.h"
 #include "recogniser/database_builder.h"
+#include "recogniser/scan_recognition.h"
 #include "recogniser/viewpoints.h"
+#include "simulator/scene_builder.h"
+#include "simulator/simulate_scan.h"
 #include "simulator/virtual_rig.h"
 
 namespace sope {
@@ -105,6 +109,11 @@ nlohmann::json Number(double value) {
 std::string Percent(double fraction) { return fmt::format("{:.1f}%", 100.0 * fraction); }
 std::string Fixed(double value, int digits) {
   return std::isfinite(value) ? fmt::format("{:.{}f}", value, digits) : std::string("–");
+}
+
+// Horizontal field of view of a pinhole, radians.
+double HorizontalFov(const CameraModel& camera) {
+  return 2.0 * std::atan(0.5 * camera.width / camera.matrix(0, 0));
 }
 
 }  // namespace
@@ -197,8 +206,25 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
     report.labels = db.classes();
   }
 
-  const CameraModel camera =
+  // The scan pipeline's rig, and a pinhole of its camera's size and field of view to draw
+  // the query poses with (the same poses as the depth-rendered protocol would use).
+  const RigCalibration rig_calibration = DefaultRigCalibration();
+  std::unique_ptr<VirtualRig> rig;
+  std::unique_ptr<Triangulator> triangulator;
+  ScanOptions scan_options;
+  PatternOptions patterns;
+  CameraModel camera =
       MakePinhole(options.camera_width, options.camera_height, options.camera_fov);
+  if (options.through_scan) {
+    const CameraModel& rig_camera = rig_calibration.camera;
+    camera = MakePinhole(rig_camera.width, rig_camera.height, HorizontalFov(rig_camera));
+    rig = std::make_unique<VirtualRig>(rig_calibration);
+    triangulator = std::make_unique<Triangulator>(rig_calibration, scan_options.triangulation);
+    patterns.projector_width = rig_calibration.projector.width;
+    patterns.projector_height = rig_calibration.projector.height;
+  }
+  SyntheticQueryOptions query_options = options.query;
+  if (options.through_scan) query_options.max_occlusion = 0.0;
   DepthRenderer renderer(camera);
   const Recogniser recogniser(db);
   std::mt19937_64 rng(options.seed);
@@ -211,7 +237,7 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
       SyntheticQuery query;
       for (int attempt = 0; attempt < kMaxQueryAttempts; ++attempt) {
         query = RenderSyntheticQuery(&renderer, camera, model.center, model.bounding_radius,
-                                     options.query, &rng);
+                                     query_options, &rng);
         if (static_cast<int>(query.cloud.size()) >= kMinQueryPoints) break;
       }
       QueryOutcome outcome;
@@ -226,7 +252,26 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
           outcome.adds_m = outcome.adds_over_diameter = kNaN;
       RecognitionResult result;
       try {
-        result = recogniser.Recognise(query.cloud, options.recognition);
+        if (options.through_scan) {
+          // The object before a backdrop beyond its farthest point; the band keeps the
+          // object only.
+          const double far = (query.cam_from_model * model.center).norm() + model.bounding_radius;
+          const double backdrop = far + 0.15;
+          Scene scene;
+          scene.objects.push_back({model.mesh, query.cam_from_model, 0.8, {}});
+          const double extent = 2.0 * backdrop * std::tan(0.5 * HorizontalFov(camera)) * 1.5;
+          scene.objects.push_back(MakeBackdrop(backdrop, extent, extent));
+          const SimulatedScan scan = SimulateScan(*rig, scene, patterns);
+          ObjectSegmentationOptions band;
+          band.max_range = far + 0.075;
+          const ScanRecognition scanned = RecogniseFrameSet(
+              scan.frames, *triangulator, scan_options.decoder, band, recogniser,
+              options.recognition);
+          result = scanned.recognition;
+          outcome.cloud_points = static_cast<int>(scanned.object.size());
+        } else {
+          result = recogniser.Recognise(query.cloud, options.recognition);
+        }
         SOPE_CHECK(!result.empty(), "no suggestion");
       } catch (const Error& e) {
         outcome.error = e.what();
@@ -400,8 +445,9 @@ std::vector<std::vector<int>> EvalReport::Confusion(std::vector<std::string>* la
 std::string EvalReport::BriefReport() const {
   const RecognitionTimings t = MedianTimings();
   std::string text = fmt::format(
-      "{} protocol, method {}: {} queries, database {} models / {} views ({})\n", ToString(
-          options.protocol), options.method_name, queries(), database_models, database_views, hash);
+      "{} protocol{}, method {}: {} queries, database {} models / {} views ({})\n",
+      ToString(options.protocol), options.through_scan ? " through the scan pipeline" : "",
+      options.method_name, queries(), database_models, database_views, hash);
   if (options.protocol == EvalProtocol::kInstance) {
     text += fmt::format(
         "  model top-1 {}, top-{} {}; class top-1 {}, top-{} {}\n"
@@ -441,6 +487,11 @@ std::string EvalReport::ToMarkdown() const {
       options.query.max_off_axis, options.query.random_roll ? "random" : "no",
       1e3 * options.query.depth_noise, Percent(options.query.max_occlusion),
       options.camera_width, options.camera_height, options.camera_fov * kRadToDeg);
+  if (options.through_scan) {
+    md += "Queries scanned through the full pipeline: the model before a backdrop on the "
+          "virtual rig, Gray code rendered, decoded, triangulated, cut to the object by a "
+          "range band (no occluder).\n\n";
+  }
   md += "| measure | value |\n|---|---|\n";
   if (options.protocol == EvalProtocol::kInstance) {
     md += fmt::format("| model top-1 | {} |\n| model top-{} | {} |\n", Percent(ModelTop1()), k,
@@ -500,6 +551,7 @@ std::string EvalReport::ToJson() const {
   nlohmann::json j;
   j["protocol"] = ToString(options.protocol);
   j["method"] = options.method_name;
+  j["through_scan"] = options.through_scan;
   j["database"] = {{"path", database_path},
                    {"models", database_models},
                    {"views", database_views},

@@ -69,6 +69,13 @@ struct EvalOptions {
   std::string method_name = "sope";  // for the report
   double adds_fraction = 0.1;        // ADD-S success threshold, fraction of the diameter
   double rotation_threshold_deg = 5.0;  // shown as a line on the error histogram
+  // Through the full scan pipeline instead of a depth rendering: the model at the query's
+  // pose before a backdrop on the virtual rig (DefaultRigCalibration: projector light,
+  // shadows, lens distortion, defocus, noise, 8-bit), the Gray-code sequence rendered,
+  // decoded, triangulated and cut to the object by a range band in front of the backdrop
+  // (recogniser/scan_recognition.h). No occluder (query.max_occlusion is ignored); the
+  // query camera is the rig's camera. ~1 s of rendering per query.
+  bool through_scan = false;
   void Check() const;
 };
 
