@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Reproduces the recogniser's evaluation figures (README "Recognition"): both protocols,
-# our method beside the thesis preset. Heavy (~20 min on 2 cores): not part of CI.
+# our method beside the thesis preset. Heavy (~40 min on 2 cores): not part of CI.
 #   scripts/evaluate.sh [SOPE] [OUT] [DATA]
 set -euo pipefail
 sope=${1:-build/app/sope}
@@ -18,6 +18,9 @@ mkdir -p "$out"
   --grouping class --out "$out/class_sope"
 "$sope" eval --db "$out/class_thesis.sopedb" --models "$out/held_out" --queries-per-model 6 \
   --method thesis --grouping class --out "$out/class_thesis"
+# The same queries scanned through the full pipeline on the virtual rig (no occluder).
+"$sope" eval --db "$out/class.sopedb" --models "$out/held_out" --queries-per-model 6 \
+  --grouping class --scan-pipeline --out "$out/class_sope_scan"
 
 # Instance protocol on the shared meshes (YCB + classic), when present.
 if [ -d "$data/meshes" ]; then
@@ -29,6 +32,8 @@ if [ -d "$data/meshes" ]; then
     "$sope" eval --db "$out/instance_thesis.sopedb" --queries-per-model 10 --method thesis \
       --occlusion $occlusion --out "$out/instance_thesis_occ$occlusion"
   done
+  "$sope" eval --db "$out/instance.sopedb" --queries-per-model 10 --scan-pipeline \
+    --out "$out/instance_sope_scan"
 else
   echo "no $data/meshes: instance protocol skipped"
 fi
