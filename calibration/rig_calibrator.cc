@@ -18,6 +18,7 @@
 
 #include "calibration/reprojection_error.h"
 #include "core/error.h"
+#include "core/statistics.h"
 
 namespace sope {
 namespace internal {
@@ -289,12 +290,6 @@ Rigid3d AveragePose(const std::vector<Rigid3d>& poses) {
     mean.translation[i] = values[values.size() / 2];
   }
   return mean;
-}
-
-double Median(std::vector<double> values) {
-  if (values.empty()) return kNaN;
-  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
-  return values[values.size() / 2];
 }
 
 std::string FormatDevice(const char* label, const CameraModel& model, double rms, int corners) {

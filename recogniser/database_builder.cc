@@ -18,6 +18,7 @@
 #include "core/camera_model.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/statistics.h"
 #include "simulator/virtual_rig.h"
 #include "recogniser/view_description.h"
 
@@ -190,13 +191,6 @@ class JobQueue {
   bool closed_ = false;
 };
 
-double Median(std::vector<double> values) {
-  if (values.empty()) return 0.0;
-  const size_t mid = values.size() / 2;
-  std::nth_element(values.begin(), values.begin() + mid, values.end());
-  return values[mid];
-}
-
 DistanceScales ComputeDistanceScales(const DatabaseData& data) {
   DistanceScales scales;
   const int n = static_cast<int>(data.views.size());
@@ -211,6 +205,7 @@ DistanceScales ComputeDistanceScales(const DatabaseData& data) {
     coarse.push_back((data.coarse.row(a) - data.coarse.row(b)).norm());
     size.push_back(std::abs(std::log(data.views[a].radius / data.views[b].radius)));
   }
+  // NaN (no pairs) and 0 both fall back to 1.
   auto positive = [](double value) { return value > 1e-9 ? value : 1.0; };
   scales.fine = positive(Median(fine));
   scales.coarse = positive(Median(coarse));

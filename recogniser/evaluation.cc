@@ -15,6 +15,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/plots.h"
+#include "core/statistics.h"
 #include "recogniser/database_builder.h"
 #include "recogniser/scan_recognition.h"
 #include "recogniser/viewpoints.h"
@@ -83,15 +84,6 @@ std::vector<double> Defined(const std::vector<QueryOutcome>& outcomes,
   }
   return values;
 }
-
-double Quantile(std::vector<double> values, double q) {
-  if (values.empty()) return kNaN;
-  std::sort(values.begin(), values.end());
-  const size_t index = std::min(values.size() - 1, static_cast<size_t>(q * values.size()));
-  return values[index];
-}
-
-double Median(const std::vector<double>& values) { return Quantile(values, 0.5); }
 
 template <typename Predicate>
 double Fraction(const std::vector<QueryOutcome>& outcomes, Predicate predicate) {

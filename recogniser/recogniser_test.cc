@@ -14,6 +14,7 @@
 
 #include "core/camera_model.h"
 #include "core/error.h"
+#include "core/statistics.h"
 #include "recogniser/database_builder.h"
 #include "recogniser/synthetic_queries.h"
 #include "simulator/procedural_objects.h"
@@ -40,11 +41,6 @@ double AddS(const TriangleMesh& mesh, const Rigid3d& a, const Rigid3d& b) {
     sum += std::sqrt(best);
   }
   return sum / pa.size();
-}
-
-double Median(std::vector<double> values) {
-  std::sort(values.begin(), values.end());
-  return values[values.size() / 2];
 }
 
 class RecogniserTest : public ::testing::Test {

@@ -23,6 +23,7 @@
 #include "core/file_util.h"
 #include "core/point_cloud.h"
 #include "core/rig_calibration.h"
+#include "core/statistics.h"
 #include "simulator/virtual_camera.h"
 #include "tests/test_support.h"
 
@@ -39,12 +40,6 @@ struct Accuracy {
   double median_object_error = 0.0;  // metres, on the mug (object 0) only
   size_t object_pixels = 0;
 };
-
-double Median(std::vector<double> values) {
-  if (values.empty()) return std::nan("");
-  std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
-  return values[values.size() / 2];
-}
 
 Accuracy Evaluate(const GroundTruth& truth, const ScanResult& result) {
   Accuracy accuracy;
@@ -156,22 +151,7 @@ SopeRun Sope(const std::string& arguments, const testing::ScratchDir& scratch,
 
 using testing::ExpectOneLineError;
 
-// A small rig so the virtual captures render quickly.
-RigCalibration SmallRig() {
-  RigCalibration rig;
-  rig.camera.width = 320;
-  rig.camera.height = 240;
-  rig.camera.matrix << 350, 0, 160, 0, 350, 120, 0, 0, 1;
-  rig.camera.distortion = {-0.05, 0.02, 0, 0, 0};
-  rig.projector.width = 256;
-  rig.projector.height = 192;
-  rig.projector.matrix << 380, 0, 128, 0, 380, 96, 0, 0, 1;
-  rig.projector.distortion = {0, 0, 0, 0, 0};
-  const double angle = std::atan2(0.15, 0.6);
-  rig.proj_from_cam.rotation = RotationFromEulerXYZ(0, -angle, 0).transpose();
-  rig.proj_from_cam.translation = -(rig.proj_from_cam.rotation * Eigen::Vector3d(0.15, 0, 0));
-  return rig;
-}
+using testing::SmallRig;
 
 bool HaveDisplay() {
   const char* display = std::getenv("DISPLAY");

@@ -23,6 +23,7 @@
 #include "core/file_util.h"
 #include "core/point_cloud.h"
 #include "core/rig_calibration.h"
+#include "core/statistics.h"
 #include "recogniser/database.h"
 #include "recogniser/database_builder.h"
 #include "recogniser/pose_metrics.h"
@@ -73,11 +74,6 @@ class ScanAndRecognise : public ::testing::Test {
 };
 testing::ScratchDir* ScanAndRecognise::scratch_ = nullptr;
 Database* ScanAndRecognise::db_ = nullptr;
-
-double Median(std::vector<double> values) {
-  std::sort(values.begin(), values.end());
-  return values.empty() ? std::nan("") : values[values.size() / 2];
-}
 
 TEST_F(ScanAndRecognise, VirtualRigLoopRecognisesClassAndPose) {
   const RigCalibration calibration = DefaultRigCalibration();
