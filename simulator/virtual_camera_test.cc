@@ -13,28 +13,14 @@
 #include "core/error.h"
 #include "simulator/primitives.h"
 #include "simulator/scene_builder.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
 
 using ::testing::HasSubstr;
 
-// A small rig so frames render quickly: camera 320×240, projector 256×192, 0.15 m baseline.
-RigCalibration SmallRig() {
-  RigCalibration rig;
-  rig.camera.width = 320;
-  rig.camera.height = 240;
-  rig.camera.matrix << 350, 0, 160, 0, 350, 120, 0, 0, 1;
-  rig.camera.distortion = {-0.05, 0.02, 0, 0, 0};
-  rig.projector.width = 256;
-  rig.projector.height = 192;
-  rig.projector.matrix << 380, 0, 128, 0, 380, 96, 0, 0, 1;
-  rig.projector.distortion = {0, 0, 0, 0, 0};
-  const double angle = std::atan2(0.15, 0.6);
-  rig.proj_from_cam.rotation = RotationFromEulerXYZ(0, -angle, 0).transpose();
-  rig.proj_from_cam.translation = -(rig.proj_from_cam.rotation * Eigen::Vector3d(0.15, 0, 0));
-  return rig;
-}
+using testing::SmallRig;
 
 Scene WallScene() {
   Scene scene;

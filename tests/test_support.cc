@@ -4,12 +4,12 @@
 #include <unistd.h>
 
 #include <algorithm>
-#include <fstream>
-#include <sstream>
-
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <random>
+#include <sstream>
 
 #include <gtest/gtest.h>
 
@@ -43,6 +43,22 @@ ScratchDir::ScratchDir() {
 ScratchDir::~ScratchDir() {
   std::error_code ignored;
   fs::remove_all(path_, ignored);
+}
+
+RigCalibration SmallRig() {
+  RigCalibration rig;
+  rig.camera.width = 320;
+  rig.camera.height = 240;
+  rig.camera.matrix << 350, 0, 160, 0, 350, 120, 0, 0, 1;
+  rig.camera.distortion = {-0.05, 0.02, 0, 0, 0};
+  rig.projector.width = 256;
+  rig.projector.height = 192;
+  rig.projector.matrix << 380, 0, 128, 0, 380, 96, 0, 0, 1;
+  rig.projector.distortion = {0, 0, 0, 0, 0};
+  const double angle = std::atan2(0.15, 0.6);
+  rig.proj_from_cam.rotation = RotationFromEulerXYZ(0, -angle, 0).transpose();
+  rig.proj_from_cam.translation = -(rig.proj_from_cam.rotation * Eigen::Vector3d(0.15, 0, 0));
+  return rig;
 }
 
 std::string Quote(const std::string& text) { return "'" + text + "'"; }

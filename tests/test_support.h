@@ -4,6 +4,8 @@
 #include <optional>
 #include <string>
 
+#include "core/rig_calibration.h"
+
 namespace sope {
 namespace testing {
 
@@ -23,6 +25,10 @@ class ScratchDir {
  private:
   std::string path_;
 };
+
+// A small rig so scenes render quickly: camera 320×240 (mild distortion), projector
+// 256×192 0.15 m to its right, both converging at 0.6 m.
+RigCalibration SmallRig();
 
 // What a command run through the shell printed, and how it ended.
 struct CommandRun {
