@@ -102,19 +102,26 @@ RigCalibration ReadRigCalibration(const std::string& path) {
     SOPE_THROW("calibration {}: not a readable OpenCV YAML/XML file", path);
   }
   SOPE_CHECK(fs.isOpened(), "calibration {}: cannot open", path);
+  // Keys are looked up in the top-level map; OpenCV asserts (throws) on anything else.
+  SOPE_CHECK(fs.root().isMap(), "calibration {}: not a calibration file (the top level is not a "
+             "map of keys)", path);
   RigCalibration calibration;
-  calibration.camera = ReadDevice(fs, "camera", path);
-  calibration.projector = ReadDevice(fs, "projector", path);
-  cv::cv2eigen(ReadMatrix(fs, "proj_from_cam_rotation", path, 3, 3),
-               calibration.proj_from_cam.rotation);
-  cv::Mat translation = ReadMatrix(fs, "proj_from_cam_translation", path, -1, -1);
-  SOPE_CHECK(translation.total() == 3, "calibration {}: 'proj_from_cam_translation' must "
-             "have 3 elements, got {}", path, translation.total());
-  translation = translation.reshape(1, 3);
-  cv::cv2eigen(translation, calibration.proj_from_cam.translation);
-  calibration.rms_camera_px = ReadOptionalDouble(fs, "rms_camera_px");
-  calibration.rms_projector_px = ReadOptionalDouble(fs, "rms_projector_px");
-  calibration.rms_stereo_px = ReadOptionalDouble(fs, "rms_stereo_px");
+  try {  // a later document of the stream that is no map makes lookups throw too
+    calibration.camera = ReadDevice(fs, "camera", path);
+    calibration.projector = ReadDevice(fs, "projector", path);
+    cv::cv2eigen(ReadMatrix(fs, "proj_from_cam_rotation", path, 3, 3),
+                 calibration.proj_from_cam.rotation);
+    cv::Mat translation = ReadMatrix(fs, "proj_from_cam_translation", path, -1, -1);
+    SOPE_CHECK(translation.total() == 3, "calibration {}: 'proj_from_cam_translation' must "
+               "have 3 elements, got {}", path, translation.total());
+    translation = translation.reshape(1, 3);
+    cv::cv2eigen(translation, calibration.proj_from_cam.translation);
+    calibration.rms_camera_px = ReadOptionalDouble(fs, "rms_camera_px");
+    calibration.rms_projector_px = ReadOptionalDouble(fs, "rms_projector_px");
+    calibration.rms_stereo_px = ReadOptionalDouble(fs, "rms_stereo_px");
+  } catch (const cv::Exception& e) {
+    SOPE_THROW("calibration {}: not a calibration file (OpenCV: {})", path, e.err);
+  }
   try {
     calibration.Check();
   } catch (const Error& e) {

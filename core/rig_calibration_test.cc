@@ -87,5 +87,24 @@ TEST(RigCalibration, MalformedFilesNameTheProblem) {
   EXPECT_THROW(ReadRigCalibration(scratch.File("missing.yaml")), Error);
 }
 
+// Found by fuzz/calibration_yaml_fuzz: a YAML whose top level is a sequence made OpenCV's
+// FileStorage::operator[] throw cv::Exception (an internal error, not a sope::Error).
+TEST(RigCalibration, TopLevelNotAMapIsAClearError) {
+  testing::ScratchDir scratch;
+  const std::string fuzzed =
+      "%YAML:1.0\n--" + std::string(120, '\0') + "-\nc%YAMamera_wmdth: 320\n";
+  for (const std::string& text : {std::string("%YAML:1.0\n---\n- 1\n- 2\n"), fuzzed}) {
+    WriteFileAtomic(scratch.File("seq.yaml"), text);
+    try {
+      ReadRigCalibration(scratch.File("seq.yaml"));
+      ADD_FAILURE() << "accepted: " << text;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("seq.yaml"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("not a calibration file"), std::string::npos)
+          << e.what();
+    }
+  }
+}
+
 }  // namespace
 }  // namespace sope
