@@ -16,6 +16,24 @@ cv::Mat ReadMatrix(const cv::FileStorage& fs, const std::string& key, const std:
   cv::Mat matrix;
   const cv::FileNode node = fs[key];
   SOPE_CHECK(!node.empty(), "calibration {}: missing key '{}'", path, key);
+  if (node.isMap()) {
+    // OpenCV allocates rows × cols before reading `data`: check the sizes first (the
+    // largest matrix here is a 1×14 distortion vector).
+    constexpr int kMaxSide = 16;
+    const cv::FileNode rows_node = node["rows"], cols_node = node["cols"];
+    const cv::FileNode data_node = node["data"];
+    SOPE_CHECK(rows_node.isInt() && cols_node.isInt() && data_node.isSeq(),
+               "calibration {}: '{}' is not a matrix", path, key);
+    const int rows_in_file = static_cast<int>(rows_node);
+    const int cols_in_file = static_cast<int>(cols_node);
+    SOPE_CHECK(rows_in_file >= 1 && rows_in_file <= kMaxSide && cols_in_file >= 1 &&
+                   cols_in_file <= kMaxSide,
+               "calibration {}: '{}' is {}x{}, expected sizes in 1..{}", path, key, rows_in_file,
+               cols_in_file, kMaxSide);
+    SOPE_CHECK(data_node.size() == static_cast<size_t>(rows_in_file) * cols_in_file,
+               "calibration {}: '{}' is {}x{} but holds {} values", path, key, rows_in_file,
+               cols_in_file, data_node.size());
+  }
   try {
     node >> matrix;
   } catch (const cv::Exception&) {

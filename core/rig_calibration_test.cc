@@ -106,5 +106,27 @@ TEST(RigCalibration, TopLevelNotAMapIsAClearError) {
   }
 }
 
+// Found by fuzz/calibration_yaml_fuzz: OpenCV allocates rows × cols of a matrix before
+// reading its data, so a header saying 100000 × 100000 allocated 80 GB.
+TEST(RigCalibration, MatrixSizesAreCheckedBeforeReading) {
+  testing::ScratchDir scratch;
+  WriteRigCalibration(scratch.File("good.yaml"), TestRig());
+  const std::string good = ReadFileToString(scratch.File("good.yaml"), "test");
+  const size_t at = good.find("rows", good.find("camera_matrix"));
+  ASSERT_NE(at, std::string::npos);
+  for (const std::string& rows : {std::string("rows: 100000"), std::string("rows: -4"),
+                                  std::string("rows: 2")}) {
+    std::string text = good;
+    text.replace(at, good.find('\n', at) - at, rows);
+    WriteFileAtomic(scratch.File("big.yaml"), text);
+    try {
+      ReadRigCalibration(scratch.File("big.yaml"));
+      ADD_FAILURE() << "accepted " << rows;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("'camera_matrix'"), std::string::npos) << e.what();
+    }
+  }
+}
+
 }  // namespace
 }  // namespace sope
