@@ -194,7 +194,8 @@ TEST_F(Cli, ObjectsContactSheets) {
     ASSERT_EQ(sheet.cols, 2 * 320);
     ASSERT_EQ(sheet.rows, 4 * 320);
     // Not blank: in the shaded rows, a good share of pixels are neither the background
-    // grey nor the label's white; in the profile row, the filled silhouette is there.
+    // grey nor the label's white; in the profile row, the filled silhouette is there (lathe
+    // classes).
     int object = 0, silhouette = 0;
     for (int y = 0; y < sheet.rows; ++y) {
       for (int x = 0; x < sheet.cols; ++x) {
@@ -207,7 +208,8 @@ TEST_F(Cli, ObjectsContactSheets) {
       }
     }
     EXPECT_GT(object, 3 * 320 * 640 / 20);
-    EXPECT_GT(silhouette, 320 * 640 / 50);
+    // The box is no lathe object: it has no profile to draw.
+    if (std::string(name) != "box") EXPECT_GT(silhouette, 320 * 640 / 50);
   }
   const std::string overview = dir + "/overview.png";
   ASSERT_TRUE(fs::is_regular_file(overview));
