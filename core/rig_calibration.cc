@@ -116,7 +116,7 @@ RigCalibration ReadRigCalibration(const std::string& path) {
   cv::FileStorage fs;
   try {
     fs.open(path, cv::FileStorage::READ);
-  } catch (const cv::Exception& e) {
+  } catch (const std::exception&) {  // cv::Exception, and std::length_error from its parser
     SOPE_THROW("calibration {}: not a readable OpenCV YAML/XML file", path);
   }
   SOPE_CHECK(fs.isOpened(), "calibration {}: cannot open", path);
@@ -137,8 +137,12 @@ RigCalibration ReadRigCalibration(const std::string& path) {
     calibration.rms_camera_px = ReadOptionalDouble(fs, "rms_camera_px");
     calibration.rms_projector_px = ReadOptionalDouble(fs, "rms_projector_px");
     calibration.rms_stereo_px = ReadOptionalDouble(fs, "rms_stereo_px");
+  } catch (const Error&) {
+    throw;
   } catch (const cv::Exception& e) {
     SOPE_THROW("calibration {}: not a calibration file (OpenCV: {})", path, e.err);
+  } catch (const std::exception& e) {
+    SOPE_THROW("calibration {}: not a calibration file ({})", path, e.what());
   }
   try {
     calibration.Check();

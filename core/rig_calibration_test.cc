@@ -130,5 +130,30 @@ TEST(RigCalibration, MatrixSizesAreCheckedBeforeReading) {
   }
 }
 
+// Found by fuzz/calibration_yaml_fuzz: OpenCV's YAML parser threw std::length_error (not a
+// cv::Exception) on this file, which escaped as an internal error.
+TEST(RigCalibration, ParserLengthErrorIsAClearError) {
+  testing::ScratchDir scratch;
+  const std::string text(
+      "%YAML:1.0\n---\ncamera_width: 320\ncamera_height: 240\ncamera_matrix: !!opencv-matri"
+      "x\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 400.0, 0.0, 160.0, 0.0, 400.0, 120.0"
+      ", 0.0, 0.0, 1.0 ]\ncamera_distortion: !pencv-matrix\n   rows: 3\n   cols: 3\n   dt: "
+      "d\n   : 320\ncamera_height: 240\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols"
+      ": 3\n   dt: d\n   data: [ 400.0, 0.0, 160.0, 0.0, 400.0, 120.0, 0.0, 0.0, 1.0 ]\ncam"
+      "era_distortion: !pencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 0.9689, "
+      "0.0, 0.2474, 0.0, 1.0, 0.0, -0.2474, 0.0, 0.9689 ]\norjfpr_om_cam_translation: !!ope"
+      "ncv-matrixdata: [ 0.9689, 0.0, 0.2474, 0.0, 1.0, 0.0, -0.2474, 0.0, 0.9689 ]\norjfpr"
+      "_om_cam_translation: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dtms_projector_p:x "
+      "0.4\nrms_stereo_px:",
+      745);
+  WriteFileAtomic(scratch.File("fuzzed.yaml"), text);
+  try {
+    ReadRigCalibration(scratch.File("fuzzed.yaml"));
+    ADD_FAILURE() << "the fuzzed file was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("fuzzed.yaml"), std::string::npos) << e.what();
+  }
+}
+
 }  // namespace
 }  // namespace sope
