@@ -66,6 +66,16 @@ void DecoderFlags::Add(CLI::App& app) {
   app.add_option("--decode-mode", mode,
                  "Bit decisions: auto (inverse if present), threshold, robust (indirect light)")
       ->capture_default_str();
+  app.add_option("--min-modulation", options.phase.min_modulation,
+                 "Phase sets: minimum sinusoid amplitude of every group, grey levels")
+      ->capture_default_str();
+  app.add_option("--max-unwrap-error", options.phase.max_unwrap_error,
+                 "Phase sets: coarse and fine coordinates may differ by this fraction of the "
+                 "fine period, else the pixel is invalid")
+      ->capture_default_str();
+  app.add_flag("--no-gamma-correction", no_gamma_correction,
+               "Phase sets: ignore the calibration's projector_response (e.g. for patterns "
+               "pre-distorted with --pattern-gamma)");
   app.add_option("--threads", options.num_threads,
                  "Threads for decoding (and triangulating, in commands that triangulate)")->capture_default_str();
 }
@@ -73,6 +83,7 @@ void DecoderFlags::Add(CLI::App& app) {
 DecoderOptions DecoderFlags::ToOptions() const {
   DecoderOptions result = options;
   result.bit_decision = BitDecisionFromString(mode);
+  if (no_gamma_correction) result.phase.use_calibration_response = false;
   result.Check();
   return result;
 }

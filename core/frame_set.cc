@@ -151,7 +151,15 @@ void FrameSetManifest::Check() const {
   for (const auto& [axis, bit, inverted] : codes) {
     if (!inverted && codes.count({axis, bit, true}) == 0) any_without_inverse = true;
   }
-  SOPE_CHECK(!any_without_inverse || (whites == 1 && blacks == 1),
+  // Phase sets may threshold a Gray code of a phase axis at the sinusoids' offset instead.
+  bool without_reference = false;
+  for (const auto& [axis, bit, inverted] : codes) {
+    if (!inverted && codes.count({axis, bit, true}) == 0 &&
+        !HasPhaseAxis(static_cast<PatternAxis>(axis))) {
+      without_reference = true;
+    }
+  }
+  SOPE_CHECK(!without_reference || (whites == 1 && blacks == 1),
              "code frames without inverses need both a white and a black frame");
 }
 

@@ -68,7 +68,8 @@ struct FrameSetManifest {
   // frames: a period ≤ 0 or not finite, a shift not finite, a group with < 3 distinct
   // shifts, a finer group with neither a coarser group nor Gray code to unwrap it, Gray
   // code on a phase axis whose finest stripe (2^lowest bit) is not the coarsest period
-  // wide (or one complementary bit finer).
+  // wide (or one complementary bit finer). A Gray code on a phase axis needs neither
+  // inverses nor white/black: it can be thresholded at the sinusoids' offset.
   void Check() const;
   // Index of the frame with this role (and axis/bit/inverted for codes), if present.
   std::optional<size_t> Find(FrameRole role) const;

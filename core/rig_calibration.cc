@@ -11,6 +11,8 @@
 namespace sope {
 namespace {
 
+constexpr const char* kResponseKey = "projector_response";
+
 cv::Mat ReadMatrix(const cv::FileStorage& fs, const std::string& key, const std::string& path,
                    int rows, int cols) {
   cv::Mat matrix;
@@ -115,6 +117,17 @@ RigCalibration ReadRigCalibration(const std::string& path) {
   calibration.rms_camera_px = ReadOptionalDouble(fs, "rms_camera_px");
   calibration.rms_projector_px = ReadOptionalDouble(fs, "rms_projector_px");
   calibration.rms_stereo_px = ReadOptionalDouble(fs, "rms_stereo_px");
+  if (!fs[kResponseKey].empty()) {
+    const cv::Mat response = ReadMatrix(fs, kResponseKey, path, -1, -1);
+    SOPE_CHECK(response.rows == 1 || response.cols == 1,
+               "calibration {}: '{}' must be a vector", path, kResponseKey);
+    calibration.projector_response.table.assign(response.begin<double>(), response.end<double>());
+    try {
+      calibration.projector_response.Check();
+    } catch (const Error& e) {
+      SOPE_THROW("calibration {}: {}", path, e.what());
+    }
+  }
   try {
     calibration.Check();
   } catch (const Error& e) {
@@ -136,6 +149,10 @@ void WriteRigCalibration(const std::string& path, const RigCalibration& calibrat
   fs << "rms_camera_px" << calibration.rms_camera_px;
   fs << "rms_projector_px" << calibration.rms_projector_px;
   fs << "rms_stereo_px" << calibration.rms_stereo_px;
+  calibration.projector_response.Check();
+  if (!calibration.projector_response.IsIdentity()) {
+    fs << kResponseKey << cv::Mat(calibration.projector_response.table, true).reshape(1, 1);
+  }
   WriteFileAtomic(path, fs.releaseAndGetString());
 }
 

@@ -44,6 +44,7 @@ constexpr float kAmbiguousMargin = 0.5f;
 constexpr int kAxisX = static_cast<int>(PatternAxis::kX);
 constexpr int kAxisY = static_cast<int>(PatternAxis::kY);
 constexpr int kMaxGrayBits = 16;
+constexpr int kMaxGroupsPerAxis = 8;
 
 struct GroupPlan {
   double period = 0.0;
@@ -86,6 +87,9 @@ Plan MakePlan(const FrameSetManifest& manifest, const PhaseDecoderOptions& optio
   for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
     AxisPlan& axis_plan = plan.axes[static_cast<int>(axis)];
     axis_plan.size = axis == PatternAxis::kX ? manifest.projector_width : manifest.projector_height;
+    SOPE_CHECK(manifest.PhaseGroups(axis).size() <= static_cast<size_t>(kMaxGroupsPerAxis),
+               "axis {}: {} phase groups (at most {})", ToString(axis),
+               manifest.PhaseGroups(axis).size(), kMaxGroupsPerAxis);
     for (const PhaseGroup& group : manifest.PhaseGroups(axis)) {
       axis_plan.groups.emplace_back(group);
       GroupPlan& added = axis_plan.groups.back();
@@ -105,9 +109,9 @@ Plan MakePlan(const FrameSetManifest& manifest, const PhaseDecoderOptions& optio
         if (const auto inverse = manifest.FindCode(axis, bit, true)) {
           gray.inverse = static_cast<int>(*inverse);
         } else {
-          SOPE_CHECK(plan.white >= 0 && plan.black >= 0,
+          SOPE_CHECK((plan.white >= 0 && plan.black >= 0) || !axis_plan.groups.empty(),
                      "axis {} bit {} has no inverse frame and the set has no white and black "
-                     "frames for a threshold", ToString(axis), bit);
+                     "frames or phase frames on the axis for a threshold", ToString(axis), bit);
         }
         axis_plan.gray_bits.push_back(gray);
       }
@@ -133,7 +137,11 @@ struct Workspace {
   alignas(64) float residual[kChunkPixels];     // Σ over groups of the residual sum of squares
   alignas(64) float finest_modulation[kChunkPixels];
   alignas(64) float finest_offset[kChunkPixels];
-  alignas(64) uint8_t valid[kChunkPixels];
+  alignas(64) float offset[kChunkPixels];  // A of the group fitted last
+  alignas(64) uint8_t valid[kChunkPixels];       // every check so far, all axes
+  alignas(64) uint8_t axis_valid[kChunkPixels];  // the unwrapping of the current axis
+  alignas(64) float absolute[kChunkPixels];      // the absolute group's coordinate
+  alignas(64) float group_fraction[kMaxGroupsPerAxis][kChunkPixels];
   alignas(64) float gray_margin[kMaxGrayBits][kChunkPixels];  // signed p − p̄ (or 2p − (w + b))
   alignas(64) float gray_contrast[kChunkPixels];  // max over the bits of |margin|
   alignas(64) uint32_t gray_word[kChunkPixels];
@@ -180,14 +188,18 @@ class ChunkDecoder {
       const AxisPlan& axis_plan = plan_.axes[axis];
       if (!axis_plan.coded) continue;
       float* coordinate = ws.coordinate[axis];
-      if (!axis_plan.gray_bits.empty()) DecodeGray(axis_plan, begin, n);
       if (axis_plan.groups.empty()) {
+        DecodeGray(axis_plan, begin, n);
         GrayBlockCentres(axis_plan, n, coordinate);
+        for (int i = 0; i < n; ++i) ws.valid[i] &= ws.axis_valid[i];
+        continue;
       }
+      std::fill_n(ws.axis_valid, n, uint8_t{1});
       for (size_t g = 0; g < axis_plan.groups.size(); ++g) {
         const GroupPlan& group = axis_plan.groups[g];
         const bool finest = g + 1 == axis_plan.groups.size();
         FitGroup(group, begin, n, finest && !finest_set);
+        std::copy_n(ws.fraction, n, ws.group_fraction[g]);
         if (finest) {
           finest_set = true;
           if (outputs_.wrapped[axis] != nullptr) {
@@ -198,7 +210,9 @@ class ChunkDecoder {
         if (g == 0) {
           if (axis_plan.gray_bits.empty()) {
             AbsoluteCoordinate(group, axis_plan.size, n, coordinate);
+            std::copy_n(coordinate, n, ws.absolute);
           } else {
+            DecodeGray(axis_plan, begin, n);  // after the fit: may threshold at its offset
             GrayUnwrap(axis_plan, group, n, coordinate);
           }
         } else {
@@ -209,8 +223,12 @@ class ChunkDecoder {
       const float low = -0.5f, high = static_cast<float>(axis_plan.size) - 0.5f;
       for (int i = 0; i < n; ++i) {
         const float u = coordinate[i];
-        ws.valid[i] = static_cast<uint8_t>(ws.valid[i] & (u >= low) & (u <= high));
+        ws.axis_valid[i] = static_cast<uint8_t>(ws.axis_valid[i] & (u >= low) & (u <= high));
       }
+      if (!axis_plan.groups.empty() && axis_plan.gray_bits.empty()) {
+        RetryOtherBranch(axis_plan, n, coordinate);
+      }
+      for (int i = 0; i < n; ++i) ws.valid[i] &= ws.axis_valid[i];
     }
     Finish(begin, n);
   }
@@ -259,6 +277,7 @@ class ChunkDecoder {
     float* __restrict residual = ws.residual;
     float* __restrict finest_modulation = ws.finest_modulation;
     float* __restrict finest_offset = ws.finest_offset;
+    float* __restrict offset = ws.offset;
     for (int i = 0; i < n; ++i) {
       const float a = m00 * q0[i] + m01 * q1[i] + m02 * q2[i];
       const float cc = m01 * q0[i] + m11 * q1[i] + m12 * q2[i];
@@ -268,6 +287,7 @@ class ChunkDecoder {
       residual[i] += std::max(rss, 0.0f);
       min_modulation[i] = std::min(min_modulation[i], modulation);
       fraction[i] = WrappedAtan2(sc, cc) * (1.0f / kTwoPi);
+      offset[i] = a;
       if (keep_texture) {
         finest_modulation[i] = modulation;
         finest_offset[i] = a;
@@ -305,7 +325,7 @@ class ChunkDecoder {
     const float inverse_period = 1.0f / period;
     const float max_error = thresholds_.max_unwrap_error;
     const float* __restrict fraction = ws_->fraction;
-    uint8_t* __restrict valid = ws_->valid;
+    uint8_t* __restrict valid = ws_->axis_valid;
     for (int i = 0; i < n; ++i) {
       const float coarse = coordinate[i] * inverse_period;
       const float k = std::floor(coarse - fraction[i] + 0.5f);
@@ -313,6 +333,34 @@ class ChunkDecoder {
       const float error = std::abs(fine - coarse);
       valid[i] = static_cast<uint8_t>(valid[i] & (error <= max_error));
       coordinate[i] = fine * period;
+    }
+  }
+
+  // An absolute group whose period barely exceeds the projector cannot tell u ≈ 0 from
+  // u ≈ period when the noise is a few pixels: pixels that failed with the folded coarse
+  // coordinate are unwrapped again from the other branch (u_coarse ∓ period) and kept when
+  // that passes every check and lands on the projector.
+  void RetryOtherBranch(const AxisPlan& axis, int n, float* __restrict coordinate) {
+    Workspace& ws = *ws_;
+    const float period = static_cast<float>(axis.groups.front().period);
+    const float size = static_cast<float>(axis.size);
+    const float max_error = thresholds_.max_unwrap_error;
+    for (int i = 0; i < n; ++i) {
+      if (ws.axis_valid[i]) continue;
+      float u = ws.absolute[i] < 0.5f * size ? ws.absolute[i] + period : ws.absolute[i] - period;
+      bool ok = true;
+      for (size_t g = 1; g < axis.groups.size() && ok; ++g) {
+        const float fine_period = static_cast<float>(axis.groups[g].period);
+        const float coarse = u / fine_period;
+        const float f = ws.group_fraction[g][i];
+        const float fine = std::floor(coarse - f + 0.5f) + f;
+        ok = std::abs(fine - coarse) <= max_error;
+        u = fine * fine_period;
+      }
+      if (ok && u >= -0.5f && u <= size - 0.5f) {
+        coordinate[i] = u;
+        ws.axis_valid[i] = 1;
+      }
     }
   }
 
@@ -332,12 +380,19 @@ class ChunkDecoder {
         for (int i = 0; i < n; ++i) {
           margin[i] = static_cast<float>(pattern[i]) - static_cast<float>(inverse[i]);
         }
-      } else {
+      } else if (plan_.white >= 0 && plan_.black >= 0) {
         const Pixel* __restrict white = Frame(plan_.white, begin);
         const Pixel* __restrict black = Frame(plan_.black, begin);
         for (int i = 0; i < n; ++i) {
           margin[i] = 2.0f * static_cast<float>(pattern[i]) - static_cast<float>(white[i]) -
                       static_cast<float>(black[i]);
+        }
+      } else {
+        // Against the offset A of the axis's coarsest phase group (its mean level), in the
+        // same doubled units: 2·(p − A).
+        const float* __restrict offset = ws.offset;
+        for (int i = 0; i < n; ++i) {
+          margin[i] = 2.0f * (static_cast<float>(pattern[i]) - offset[i]);
         }
       }
       for (int i = 0; i < n; ++i) {
@@ -356,7 +411,7 @@ class ChunkDecoder {
       const uint32_t start = ws_->gray_word[i] * block;
       const uint32_t end = std::min(start + block, size);
       coordinate[i] = start < size ? 0.5f * static_cast<float>(start + end - 1) : kNaN;
-      ws_->valid[i] &= static_cast<uint8_t>(start < size);
+      ws_->axis_valid[i] = static_cast<uint8_t>(start < size);
     }
   }
 

@@ -25,6 +25,10 @@ struct PhaseDecoderOptions {
   // corrected for the harmonics it adds (gamma ripple). Identity: no correction (linear
   // rig, or patterns pre-distorted with PatternOptions::precompensate).
   ProjectorResponse response;
+  // Scans (calibration/scan.h): take `response` from the rig calibration's
+  // projector_response when `response` is the identity. Off for patterns that were
+  // pre-distorted with the measured response (they would be corrected twice).
+  bool use_calibration_response = true;
 
   // Throws sope::Error naming an invalid value.
   void Check() const;
