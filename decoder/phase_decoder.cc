@@ -545,33 +545,38 @@ void DecodeAll(const Plan& plan, const std::vector<cv::Mat>& images, const Thres
 // unwrapping error moves a pixel by a whole period, far beyond the tolerance.
 void RemoveSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map) {
   const int rows = map->mask.rows, cols = map->mask.cols;
-  cv::Mat keep(rows, cols, CV_8UC1, cv::Scalar(0));
-  const auto agree = [&](int y, int x, int ny, int nx) {
-    for (const cv::Mat* image : {&map->proj_x, &map->proj_y}) {
-      if (image->empty()) continue;
-      const float d = image->at<float>(ny, nx) - image->at<float>(y, x);
-      if (!(std::abs(d) <= tolerance)) return false;
-    }
-    return true;
+  const std::vector<float> zeros(cols, 0.0f);
+  const auto row_of = [&](const cv::Mat& image, int y) -> const float* {
+    return image.empty() ? zeros.data() : image.ptr<float>(y);
   };
-  cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
+  cv::Mat keep(rows, cols, CV_8UC1);
+  // Serial, as the Gray decoder's filter (DecoderOptions::num_threads covers the decode).
+  const auto filter = [&](const cv::Range& range) {
+    std::vector<uint8_t> count(cols);
     for (int y = range.start; y < range.end; ++y) {
-      const uint8_t* mask = map->mask.ptr<uint8_t>(y);
-      uint8_t* out = keep.ptr<uint8_t>(y);
-      for (int x = 0; x < cols; ++x) {
-        if (mask[x] == 0) continue;
-        int count = 0;
-        for (int ny = std::max(0, y - 1); ny <= std::min(rows - 1, y + 1); ++ny) {
-          const uint8_t* neighbour_mask = map->mask.ptr<uint8_t>(ny);
-          for (int nx = std::max(0, x - 1); nx <= std::min(cols - 1, x + 1); ++nx) {
-            if ((nx == x && ny == y) || neighbour_mask[nx] == 0) continue;
-            count += agree(y, x, ny, nx);
+      std::fill(count.begin(), count.end(), uint8_t{0});
+      const float* __restrict u = row_of(map->proj_x, y);
+      const float* __restrict v = row_of(map->proj_y, y);
+      for (int ny = std::max(0, y - 1); ny <= std::min(rows - 1, y + 1); ++ny) {
+        const float* __restrict nu = row_of(map->proj_x, ny);
+        const float* __restrict nv = row_of(map->proj_y, ny);
+        for (int dx = -1; dx <= 1; ++dx) {
+          if (dx == 0 && ny == y) continue;
+          // Invalid pixels hold NaN: every comparison with them is false.
+          const int begin = std::max(0, -dx), end = std::min(cols, cols - dx);
+          uint8_t* __restrict c = count.data();
+          for (int x = begin; x < end; ++x) {
+            const float du = nu[x + dx] - u[x], dv = nv[x + dx] - v[x];
+            c[x] = static_cast<uint8_t>(c[x] + ((du <= tolerance) & (du >= -tolerance) &
+                                                (dv <= tolerance) & (dv >= -tolerance)));
           }
         }
-        out[x] = count >= min_neighbours;
       }
+      uint8_t* out = keep.ptr<uint8_t>(y);
+      for (int x = 0; x < cols; ++x) out[x] = count[x] >= min_neighbours;
     }
-  });
+  };
+  filter(cv::Range(0, rows));
   for (int y = 0; y < rows; ++y) {
     const uint8_t* k = keep.ptr<uint8_t>(y);
     uint8_t* mask = map->mask.ptr<uint8_t>(y);
