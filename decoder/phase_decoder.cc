@@ -46,6 +46,21 @@ constexpr int kAxisY = static_cast<int>(PatternAxis::kY);
 constexpr int kMaxGrayBits = 16;
 constexpr int kMaxGroupsPerAxis = 8;
 
+inline float FastWrappedAtan2(float y, float x) {
+  // atan on [0, 1]: Abramowitz & Stegun 4.4.49-style odd minimax polynomial.
+  constexpr float a1 = 0.99997726f, a3 = -0.33262347f, a5 = 0.19354346f, a7 = -0.11643287f,
+                  a9 = 0.05265332f, a11 = -0.01172120f;
+  const float ax = std::abs(x), ay = std::abs(y);
+  const float big = std::max(ax, ay), small = std::min(ax, ay);
+  const float z = big > 0.0f ? small / big : 0.0f;
+  const float z2 = z * z;
+  float angle = z * (a1 + z2 * (a3 + z2 * (a5 + z2 * (a7 + z2 * (a9 + z2 * a11)))));
+  angle = ay > ax ? kHalfPi - angle : angle;
+  angle = x < 0.0f ? kPi - angle : angle;
+  angle = y < 0.0f ? kTwoPi - angle : angle;
+  return angle >= kTwoPi ? angle - kTwoPi : angle;
+}
+
 struct GroupPlan {
   double period = 0.0;
   bool absolute = false;
@@ -138,6 +153,7 @@ struct Workspace {
   alignas(64) float finest_modulation[kChunkPixels];
   alignas(64) float finest_offset[kChunkPixels];
   alignas(64) float offset[kChunkPixels];  // A of the group fitted last
+  alignas(64) float modulation_of_group[kChunkPixels];  // B of the group fitted last
   alignas(64) uint8_t valid[kChunkPixels];       // every check so far, all axes
   alignas(64) uint8_t axis_valid[kChunkPixels];  // the unwrapping of the current axis
   alignas(64) float absolute[kChunkPixels];      // the absolute group's coordinate
@@ -278,6 +294,7 @@ class ChunkDecoder {
     float* __restrict finest_modulation = ws.finest_modulation;
     float* __restrict finest_offset = ws.finest_offset;
     float* __restrict offset = ws.offset;
+    float* __restrict modulation_of_group = ws.modulation_of_group;
     for (int i = 0; i < n; ++i) {
       const float a = m00 * q0[i] + m01 * q1[i] + m02 * q2[i];
       const float cc = m01 * q0[i] + m11 * q1[i] + m12 * q2[i];
@@ -286,12 +303,13 @@ class ChunkDecoder {
       const float rss = ss[i] - (a * q0[i] + cc * q1[i] + sc * q2[i]);
       residual[i] += std::max(rss, 0.0f);
       min_modulation[i] = std::min(min_modulation[i], modulation);
-      fraction[i] = WrappedAtan2(sc, cc) * (1.0f / kTwoPi);
+      fraction[i] = FastWrappedAtan2(sc, cc) * (1.0f / kTwoPi);
       offset[i] = a;
-      if (keep_texture) {
-        finest_modulation[i] = modulation;
-        finest_offset[i] = a;
-      }
+      modulation_of_group[i] = modulation;
+    }
+    if (keep_texture) {
+      std::copy_n(modulation_of_group, n, finest_modulation);
+      std::copy_n(offset, n, finest_offset);
     }
     if (!group.correction.empty()) {
       const float* __restrict table = group.correction.data();
@@ -601,20 +619,7 @@ void PrepareOutput(cv::Size size, int type, cv::Mat* image) {
 
 }  // namespace
 
-float WrappedAtan2(float y, float x) {
-  // atan on [0, 1]: Abramowitz & Stegun 4.4.49-style odd minimax polynomial.
-  constexpr float a1 = 0.99997726f, a3 = -0.33262347f, a5 = 0.19354346f, a7 = -0.11643287f,
-                  a9 = 0.05265332f, a11 = -0.01172120f;
-  const float ax = std::abs(x), ay = std::abs(y);
-  const float big = std::max(ax, ay), small = std::min(ax, ay);
-  const float z = big > 0.0f ? small / big : 0.0f;
-  const float z2 = z * z;
-  float angle = z * (a1 + z2 * (a3 + z2 * (a5 + z2 * (a7 + z2 * (a9 + z2 * a11)))));
-  angle = ay > ax ? kHalfPi - angle : angle;
-  angle = x < 0.0f ? kPi - angle : angle;
-  angle = y < 0.0f ? kTwoPi - angle : angle;
-  return angle >= kTwoPi ? angle - kTwoPi : angle;
-}
+float WrappedAtan2(float y, float x) { return FastWrappedAtan2(y, x); }
 
 PhaseFit::PhaseFit(const std::vector<double>& shifts) {
   SOPE_CHECK(shifts.size() >= 3, "phase group with {} shifts (needs ≥ 3)", shifts.size());
