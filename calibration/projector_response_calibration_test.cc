@@ -58,11 +58,11 @@ TEST(ProjectorResponseCalibration, RampDirectoryRoundTripAndBadInput) {
   EXPECT_EQ(cv::norm(read[3], ramp[3], cv::NORM_INF), 0.0);
   EXPECT_NEAR(MeasureProjectorResponse(read, options).fitted_gamma, 1.8, 0.1);
   options.levels = 7;
-  EXPECT_THROW(MeasureProjectorResponse(read, options), Error);  // count mismatch
+  EXPECT_THROW_WITH_MESSAGE(MeasureProjectorResponse(read, options), Error, "6 captures for 7 levels");
   options.levels = 6;
   std::vector<cv::Mat> flat(6, cv::Mat(10, 10, CV_8UC1, cv::Scalar(50)));
-  EXPECT_THROW(MeasureProjectorResponse(flat, options), Error);  // no contrast
-  EXPECT_THROW(ReadGreyRamp(scratch.File("missing")), Error);
+  EXPECT_THROW_WITH_MESSAGE(MeasureProjectorResponse(flat, options), Error, "no pixel has a contrast");
+  EXPECT_THROW_WITH_MESSAGE(ReadGreyRamp(scratch.File("missing")), Error, "ramp.json");
 }
 
 }  // namespace

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -29,14 +30,14 @@ TEST(ProjectorResponse, FromMeasuredNormalisesAndRejectsFlatCurves) {
   EXPECT_DOUBLE_EQ(response.table[1], 0.05);
   EXPECT_DOUBLE_EQ(response.table[2], 0.05);  // made non-decreasing
   EXPECT_DOUBLE_EQ(response.table[3], 1.0);
-  EXPECT_THROW(ProjectorResponse::FromMeasured({50.0, 50.0}), Error);
-  EXPECT_THROW(ProjectorResponse::FromMeasured({50.0}), Error);
+  EXPECT_THROW_WITH_MESSAGE(ProjectorResponse::FromMeasured({50.0, 50.0}), Error, "no contrast");
+  EXPECT_THROW_WITH_MESSAGE(ProjectorResponse::FromMeasured({50.0}), Error, "1 measured levels");
   ProjectorResponse bad;
   bad.table = {0.0, 0.6, 0.5, 1.0};
-  EXPECT_THROW(bad.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(bad.Check(), Error, "entry 2 (0.5)", "must not decrease");
   bad.table = {0.1, 1.0};
-  EXPECT_THROW(bad.Check(), Error);
-  EXPECT_THROW(ProjectorResponse::Gamma(0.0), Error);
+  EXPECT_THROW_WITH_MESSAGE(bad.Check(), Error, "runs from 0.1 to 1");
+  EXPECT_THROW_WITH_MESSAGE(ProjectorResponse::Gamma(0.0), Error, "projector gamma 0");
 }
 
 }  // namespace

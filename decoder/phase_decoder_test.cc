@@ -15,6 +15,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
+#include "tests/test_support.h"
 #include "core/statistics.h"
 #include "decoder/decoder.h"
 #include "projector/patterns.h"
@@ -391,13 +392,13 @@ TEST(PhaseDecoder, InvalidOptionsNameTheValue) {
   const FrameSet set = Render(PhasePatterns(64, 48, {64}, 3), Capture{});
   DecoderOptions options;
   options.phase.max_unwrap_error = 0.6;
-  EXPECT_THROW(Decode(set, options), Error);
+  EXPECT_THROW_WITH_MESSAGE(Decode(set, options), Error, "max_unwrap_error 0.6");
   options = {};
   options.phase.min_modulation = -1;
-  EXPECT_THROW(Decode(set, options), Error);
+  EXPECT_THROW_WITH_MESSAGE(Decode(set, options), Error, "min_modulation -1");
   options = {};
   options.phase.response.table = {0.0, 0.7, 0.6, 1.0};
-  EXPECT_THROW(Decode(set, options), Error);
+  EXPECT_THROW_WITH_MESSAGE(Decode(set, options), Error, "must not decrease");
 }
 
 }  // namespace

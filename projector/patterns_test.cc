@@ -427,7 +427,7 @@ TEST(PhasePatterns, InvalidOptionsNameTheValue) {
   PatternOptions options;
   options.family = PatternFamily::kPhase;
   options.periods = {1024, 0};
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "phase period 0");
   options.periods = {512, 64};  // coarsest below the 1024 px width
   try {
     options.Check();
@@ -437,15 +437,16 @@ TEST(PhasePatterns, InvalidOptionsNameTheValue) {
   }
   options.periods = {1024};
   options.steps = 2;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "phase steps 2");
   options.steps = 4;
   options.family = PatternFamily::kGrayPhase;
   options.period = 12;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "gray+phase period 12");
   PatternCode code = PatternCode::kBinary;
   EXPECT_EQ(PatternFamilyFromString("gray+phase", &code), PatternFamily::kGrayPhase);
   EXPECT_EQ(code, PatternCode::kGray);
-  EXPECT_THROW(PatternFamilyFromString("sine", &code), Error);
+  EXPECT_THROW_WITH_MESSAGE(PatternFamilyFromString("sine", &code), Error,
+                            "unknown pattern code 'sine'");
 }
 
 }  // namespace
