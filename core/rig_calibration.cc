@@ -11,6 +11,8 @@
 namespace sope {
 namespace {
 
+constexpr const char* kResponseKey = "projector_response";
+
 cv::Mat ReadMatrix(const cv::FileStorage& fs, const std::string& key, const std::string& path,
                    int rows, int cols) {
   cv::Mat matrix;
@@ -18,8 +20,8 @@ cv::Mat ReadMatrix(const cv::FileStorage& fs, const std::string& key, const std:
   SOPE_CHECK(!node.empty(), "calibration {}: missing key '{}'", path, key);
   if (node.isMap()) {
     // OpenCV allocates rows × cols before reading `data`: check the sizes first (the
-    // largest matrix here is a 1×14 distortion vector).
-    constexpr int kMaxSide = 16;
+    // largest matrix here is the projector response, a vector of up to 4096 entries).
+    constexpr int kMaxSide = 4096;
     const cv::FileNode rows_node = node["rows"], cols_node = node["cols"];
     const cv::FileNode data_node = node["data"];
     SOPE_CHECK(rows_node.isInt() && cols_node.isInt() && data_node.isSeq(),
@@ -137,6 +139,17 @@ RigCalibration ReadRigCalibration(const std::string& path) {
     calibration.rms_camera_px = ReadOptionalDouble(fs, "rms_camera_px");
     calibration.rms_projector_px = ReadOptionalDouble(fs, "rms_projector_px");
     calibration.rms_stereo_px = ReadOptionalDouble(fs, "rms_stereo_px");
+    if (!fs[kResponseKey].empty()) {
+      const cv::Mat response = ReadMatrix(fs, kResponseKey, path, -1, -1);
+      SOPE_CHECK(response.rows == 1 || response.cols == 1,
+                 "calibration {}: '{}' must be a vector", path, kResponseKey);
+      calibration.projector_response.table.assign(response.begin<double>(), response.end<double>());
+      try {
+        calibration.projector_response.Check();
+      } catch (const Error& e) {
+        SOPE_THROW("calibration {}: {}", path, e.what());
+      }
+    }
   } catch (const Error&) {
     throw;
   } catch (const cv::Exception& e) {
@@ -165,6 +178,10 @@ void WriteRigCalibration(const std::string& path, const RigCalibration& calibrat
   fs << "rms_camera_px" << calibration.rms_camera_px;
   fs << "rms_projector_px" << calibration.rms_projector_px;
   fs << "rms_stereo_px" << calibration.rms_stereo_px;
+  calibration.projector_response.Check();
+  if (!calibration.projector_response.IsIdentity()) {
+    fs << kResponseKey << cv::Mat(calibration.projector_response.table, true).reshape(1, 1);
+  }
   WriteFileAtomic(path, fs.releaseAndGetString());
 }
 

@@ -59,6 +59,38 @@ TEST(RigCalibration, ReadableByOpenCvFileStorageWithDesignKeys) {
   EXPECT_EQ(translation.cols, 1);
 }
 
+TEST(RigCalibration, ProjectorResponseIsOptionalAndRoundTrips) {
+  testing::ScratchDir scratch;
+  RigCalibration rig = TestRig();
+  WriteRigCalibration(scratch.File("plain.yaml"), rig);
+  EXPECT_TRUE(ReadRigCalibration(scratch.File("plain.yaml")).projector_response.IsIdentity());
+  {
+    cv::FileStorage fs(scratch.File("plain.yaml"), cv::FileStorage::READ);
+    EXPECT_TRUE(fs["projector_response"].empty());  // files without it stay as they were
+  }
+  rig.projector_response = ProjectorResponse::Gamma(2.2, 9);
+  WriteRigCalibration(scratch.File("gamma.yaml"), rig);
+  const RigCalibration read = ReadRigCalibration(scratch.File("gamma.yaml"));
+  ASSERT_EQ(read.projector_response.table.size(), 9u);
+  for (size_t k = 0; k < 9; ++k) {
+    EXPECT_NEAR(read.projector_response.table[k], rig.projector_response.table[k], 1e-12);
+  }
+  // A decreasing curve is refused with the key's problem named.
+  std::string text = ReadFileToString(scratch.File("gamma.yaml"), "test");
+  const size_t at = text.find("projector_response");
+  ASSERT_NE(at, std::string::npos);
+  text = text.substr(0, at) +
+         "projector_response: !!opencv-matrix\n   rows: 1\n   cols: 4\n   dt: d\n"
+         "   data: [ 0., 0.8, 0.5, 1. ]\n";
+  WriteFileAtomic(scratch.File("bad.yaml"), text);
+  try {
+    ReadRigCalibration(scratch.File("bad.yaml"));
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("must not decrease"), std::string::npos) << e.what();
+  }
+}
+
 TEST(RigCalibration, MalformedFilesNameTheProblem) {
   testing::ScratchDir scratch;
   WriteRigCalibration(scratch.File("good.yaml"), TestRig());
