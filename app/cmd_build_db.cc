@@ -6,7 +6,7 @@
 #include "app/commands.h"
 #include "core/error.h"
 #include "recogniser/database.h"
-#include "recogniser/database_builder.h"
+#include "recogniser/tools/database_builder.h"
 
 namespace sope {
 

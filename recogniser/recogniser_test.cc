@@ -15,8 +15,8 @@
 #include "core/camera_model.h"
 #include "core/error.h"
 #include "core/statistics.h"
-#include "recogniser/database_builder.h"
-#include "recogniser/synthetic_queries.h"
+#include "recogniser/tools/database_builder.h"
+#include "recogniser/tools/synthetic_queries.h"
 #include "simulator/procedural_objects.h"
 #include "tests/test_support.h"
 

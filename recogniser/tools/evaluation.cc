@@ -1,4 +1,4 @@
-#include "recogniser/evaluation.h"
+#include "recogniser/tools/evaluation.h"
 
 #include <algorithm>
 #include <cmath>
@@ -16,8 +16,8 @@
 #include "core/file_util.h"
 #include "core/plots.h"
 #include "core/statistics.h"
-#include "recogniser/database_builder.h"
-#include "recogniser/scan_recognition.h"
+#include "recogniser/tools/database_builder.h"
+#include "recogniser/tools/scan_recognition.h"
 #include "recogniser/viewpoints.h"
 #include "simulator/scene_builder.h"
 #include "simulator/simulate_scan.h"

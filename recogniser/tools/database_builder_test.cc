@@ -1,4 +1,4 @@
-#include "recogniser/database_builder.h"
+#include "recogniser/tools/database_builder.h"
 
 #include <filesystem>
 

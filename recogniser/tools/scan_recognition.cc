@@ -1,4 +1,4 @@
-#include "recogniser/scan_recognition.h"
+#include "recogniser/tools/scan_recognition.h"
 
 #include <algorithm>
 #include <chrono>

@@ -1,4 +1,4 @@
-#include "recogniser/database_builder.h"
+#include "recogniser/tools/database_builder.h"
 
 #include <algorithm>
 #include <atomic>
@@ -19,8 +19,8 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/statistics.h"
-#include "simulator/virtual_rig.h"
 #include "recogniser/view_description.h"
+#include "simulator/virtual_rig.h"
 
 namespace sope {
 namespace {
