@@ -7,7 +7,7 @@
 #include "app/commands.h"
 #include "core/error.h"
 #include "recogniser/database.h"
-#include "recogniser/evaluation.h"
+#include "recogniser/tools/evaluation.h"
 
 namespace sope {
 
