@@ -35,6 +35,7 @@
 #include "recogniser/recogniser.h"
 #include "recogniser/scan_recognition.h"
 #include "simulator/procedural_objects.h"
+#include "recogniser/bop.h"
 #include "simulator/virtual_camera.h"
 #include "simulator/virtual_rig.h"
 
@@ -239,6 +240,12 @@ int RunScanAndRecognise(int argc, char** argv) {
                  "Per scan: scan_NNNN.ply (the full cloud), scan_NNNN_object.ply (the "
                  "segmented cloud), scan_NNNN_overlay.png, and the JSON line appended to "
                  "results.jsonl");
+  std::string bop_csv;
+  std::vector<BopEstimate> bop_estimates;
+  app.add_option("--bop-csv", bop_csv,
+                 "Also write each scan's best estimate to a BOP challenge results CSV "
+                 "(scene_id 1, im_id = scan index, obj_id = database model index + 1, t in mm, "
+                 "time = frame to result in s), rewritten after every scan");
   CLI::Option* scans_option =
       app.add_option("--scans", scans, "Number of scans (live sources; default 1, or until "
                                        "Ctrl-C with --continuous)");
@@ -459,6 +466,12 @@ int RunScanAndRecognise(int argc, char** argv) {
                                 ? ReadFileToString(results_path, "results file")
                                 : std::string();
       WriteFileAtomic(results_path, results + j.dump() + "\n");
+    }
+    if (!bop_csv.empty() && !recognition.empty()) {
+      const Suggestion& best = recognition.best();
+      bop_estimates.push_back({1, index, best.model + 1, best.score, best.cam_from_model,
+                               result.timing.total / 1000.0});
+      WriteBopCsv(bop_csv, bop_estimates);
     }
     if (json) {
       std::printf("%s\n", j.dump().c_str());
