@@ -14,6 +14,7 @@
 #include "app/pipeline_flags.h"
 #include "core/error.h"
 #include "pipeline/default_database.h"
+#include "recogniser/bop.h"
 #include "pipeline/scan_and_recognise.h"
 #include "pipeline/scan_source.h"
 #include "simulator/virtual_rig.h"
@@ -23,6 +24,7 @@ namespace {
 
 struct Flags {
   std::string camera, calibration_path, db_path, out_dir, object_spec, instances = "unseen";
+  std::string bop_csv;
   std::vector<std::string> frames_dirs;
   bool use_virtual = false, continuous = false, json = false, no_backdrop = false;
   int scans = 0, top = 4;
@@ -66,6 +68,10 @@ void Flags::Add(CLI::App& app) {
                  "Per scan: scan_NNNN.ply (the full cloud), scan_NNNN_object.ply (the "
                  "segmented cloud), scan_NNNN_overlay.png, and the JSON line appended to "
                  "results.jsonl");
+  app.add_option("--bop-csv", bop_csv,
+                 "Also write each scan's best estimate to a BOP challenge results CSV "
+                 "(scene_id 1, im_id = scan index, obj_id = database model index + 1, t in mm, "
+                 "time = frame to result in s), rewritten after every scan");
   scans_option = app.add_option("--scans", scans, "Number of scans (live sources; default 1, "
                                                   "or until Ctrl-C with --continuous)");
   app.add_flag("--continuous", continuous, "Scan again and again until Ctrl-C (or --scans N)");
@@ -216,9 +222,17 @@ int RunScanAndRecognise(int argc, char** argv) {
   const std::unique_ptr<ScanSource> source = MakeSource(flags, *db, interrupt.flag());
   ScanAndRecogniseController controller(options, source.get(), *db);
   std::optional<cli::Progress> progress;
+  std::vector<BopEstimate> bop_estimates;
   controller.Run(
       [&](const ScanReport& report) {
         progress.reset();
+        const RecognitionResult& recognition = report.result.recognition;
+        if (!flags.bop_csv.empty() && !recognition.empty()) {
+          const Suggestion& best = recognition.best();
+          bop_estimates.push_back({1, report.index, best.model + 1, best.score,
+                                   best.cam_from_model, report.result.timing.total / 1000.0});
+          WriteBopCsv(flags.bop_csv, bop_estimates);
+        }
         std::printf("%s\n", flags.json ? report.json.c_str() : ScanReportToText(report).c_str());
         std::fflush(stdout);
       },

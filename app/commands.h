@@ -17,5 +17,7 @@ int RunRecognise(int argc, char** argv);
 int RunScanAndRecognise(int argc, char** argv);
 int RunEval(int argc, char** argv);
 int RunObjects(int argc, char** argv);
+int RunImport(int argc, char** argv);
+int RunExportDb(int argc, char** argv);
 
 }  // namespace sope

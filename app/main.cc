@@ -36,6 +36,8 @@ constexpr Command kCommands[] = {
      "scan, recognise the object and estimate its pose (live, replayed or virtual)"},
     {"objects", sope::RunObjects, "write procedural household objects as a models directory"},
     {"eval", sope::RunEval, "evaluate the recogniser on synthetic queries with ground truth"},
+    {"import", sope::RunImport, "write a frame set for another tool's capture (OpenCV, SLStudio)"},
+    {"export-db", sope::RunExportDb, "write a database's coarse codes as a FAISS binary index"},
 };
 
 void PrintUsage(std::FILE* stream) {

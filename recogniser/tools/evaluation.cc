@@ -111,6 +111,8 @@ void ScoreOutcome(const Database& db, const EvalModel& model, const SyntheticQue
   const Suggestion& best = result.best();
   outcome.predicted_model = best.model_name;
   outcome.predicted_class = best.class_name;
+  outcome.predicted_model_index = best.model;
+  outcome.estimated_cam_from_model = best.cam_from_model;
   outcome.refined = best.refined;
   outcome.score = best.score;
   outcome.flagged_fraction = result.flagged_fraction;
@@ -286,6 +288,7 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
       outcome.distance = query.distance;
       outcome.occluded_fraction = query.occluded_fraction;
       outcome.cloud_points = static_cast<int>(query.cloud.size());
+      outcome.truth_cam_from_model = query.cam_from_model;
       outcome.viewpoint_error_deg = outcome.rotation_error_deg = outcome.translation_error_m =
           outcome.adds_m = outcome.adds_over_diameter = kNaN;
       RecognitionResult result;

@@ -106,6 +106,11 @@ struct QueryOutcome {
   bool adds_ok = false;
   double flagged_fraction = 0.0;
   RecognitionTimings timing;
+  // The best suggestion's database model (−1: none) and pose, and the query's true pose
+  // (cam_from_model, metres): for BOP results files (recogniser/bop.h).
+  int predicted_model_index = -1;
+  Rigid3d estimated_cam_from_model;
+  Rigid3d truth_cam_from_model;
 };
 
 struct EvalReport {
