@@ -303,7 +303,8 @@ void FinishPixels(int n, const uint8_t* __restrict code_x_high,
                   const AxisFinish& axis_y, const Wide* __restrict contrast,
                   const Margin* __restrict margin, int min_contrast, int solid_margin,
                   float margin_scale, float* __restrict out_x, float* __restrict out_y,
-                  uint8_t* __restrict mask, float* __restrict confidence) {
+                  uint8_t* __restrict mask, float* __restrict confidence,
+                  uint8_t* __restrict boundary) {
   const float* __restrict lut_x = axis_x.lut;
   const float* __restrict lut_y = axis_y.lut;
   for (int i = 0; i < n; ++i) {
@@ -321,25 +322,23 @@ void FinishPixels(int n, const uint8_t* __restrict code_x_high,
     const float relative =
         static_cast<float>(m) / (margin_scale * static_cast<float>(std::max(c, 1)));
     confidence[i] = valid ? std::min(relative, 1.0f) : 0.0f;
+    // Candidates of the second pass: weak bits, enough contrast, solid decided bits.
+    boundary[i] = static_cast<uint8_t>(!no_weak & (c >= min_contrast) & (m >= solid_margin));
   }
   for (int i = 0; i < n; ++i) {
-    // Skip 8 pixels at a time while none has a weak bit (the common case).
+    // Skip 8 pixels at a time while none is a candidate (the common case; on dark or
+    // speckled captures many pixels have weak bits, but few enough contrast).
     if ((i & 7) == 0 && i + 8 <= n) {
-      uint64_t any = 0, word = 0;
-      for (const uint8_t* plane : {weak_x_high, weak_x_low, weak_y_high, weak_y_low}) {
-        std::memcpy(&word, plane + i, sizeof(word));
-        any |= word;
-      }
-      if (any == 0) {
+      uint64_t word = 0;
+      std::memcpy(&word, boundary + i, sizeof(word));
+      if (word == 0) {
         i += 7;
         continue;
       }
     }
+    if (boundary[i] == 0) continue;
     const int weak_x = (weak_x_high[i] << 8) | weak_x_low[i];
     const int weak_y = (weak_y_high[i] << 8) | weak_y_low[i];
-    if ((weak_x | weak_y) == 0 || contrast[i] < min_contrast || margin[i] < solid_margin) {
-      continue;
-    }
     const AxisValue vx = BoundaryCoordinate(axis_x, (code_x_high[i] << 8) | code_x_low[i], weak_x);
     const AxisValue vy = BoundaryCoordinate(axis_y, (code_y_high[i] << 8) | code_y_low[i], weak_y);
     if (!vx.ok || !vy.ok || std::isnan(vx.coordinate) || std::isnan(vy.coordinate)) continue;
@@ -375,6 +374,7 @@ struct Workspace {
   alignas(64) uint8_t direct_dominates[kChunkPixels];
   alignas(64) uint8_t too_dark[kChunkPixels];
   alignas(64) float discard[kChunkPixels];  // coordinates of an axis that is not coded
+  alignas(64) uint8_t boundary[kChunkPixels];  // FinishPixels' second-pass candidates
 };
 
 template <typename Pixel>
@@ -522,7 +522,7 @@ class ChunkDecoder {
                  kSolidMarginFactor * std::max(thresholds_.min_bit_margin, 1), static_cast<float>(thresholds_.margin_scale),
                  outputs_.proj[kAxisX] ? outputs_.proj[kAxisX] + begin : ws.discard,
                  outputs_.proj[kAxisY] ? outputs_.proj[kAxisY] + begin : ws.discard,
-                 outputs_.mask + begin, outputs_.confidence + begin);
+                 outputs_.mask + begin, outputs_.confidence + begin, ws.boundary);
   }
 
   const DecodePlan& plan_;
@@ -584,19 +584,49 @@ Thresholds MakeThresholds(const DecodePlan& plan, const DecoderOptions& options,
   return thresholds;
 }
 
-// Adds to count[x] (x in [0, n)) whether the neighbour at column x + dx of the rows
-// (nu, nv) agrees with (u, v) within `tolerance` on both axes. Invalid pixels hold NaN,
-// whose comparisons are false, so no mask is needed; an uncoded axis passes one row of
-// zeros as both. Branch-free so that it vectorises.
-inline void CountAgreeing(const float* __restrict u, const float* __restrict v,
-                          const float* __restrict nu, const float* __restrict nv, int dx, int n,
-                          float tolerance, uint8_t* __restrict count) {
-  const int begin = std::max(0, -dx), end = std::min(n, n - dx);
-  for (int x = begin; x < end; ++x) {
-    const float du = nu[x + dx] - u[x], dv = nv[x + dx] - v[x];
-    const bool agree = (du <= tolerance) & (du >= -tolerance) & (dv <= tolerance) &
-                       (dv >= -tolerance);
-    count[x] = static_cast<uint8_t>(count[x] + agree);
+// Whether neighbour (nu, nv) agrees with (u, v) within `tolerance` on both axes. Invalid
+// pixels hold NaN, whose comparisons are false, so no mask is needed; an uncoded axis
+// passes zeros for both.
+inline bool Agrees(float u, float v, float nu, float nv, float tolerance) {
+  const float du = nu - u, dv = nv - v;
+  return (du <= tolerance) & (du >= -tolerance) & (dv <= tolerance) & (dv >= -tolerance);
+}
+
+// flag[x] = 1 where a valid pixel of row (u, v) has fewer than `min_neighbours` agreeing
+// neighbours among its 8 in the rows above (ua, va), itself and below (ub, vb) (missing
+// rows are NaN). One fused pass: the counts stay in registers and the interior loop is
+// branch-free, so that it vectorises.
+void FlagSpeckles(const float* __restrict u, const float* __restrict v,
+                  const float* __restrict ua, const float* __restrict va,
+                  const float* __restrict ub, const float* __restrict vb,
+                  const uint8_t* __restrict mask, int n, float tolerance, int min_neighbours,
+                  uint8_t* __restrict flag) {
+  const auto count_at = [&](int x) {
+    int count = 0;
+    for (int dx = -1; dx <= 1; ++dx) {
+      const int nx = x + dx;
+      if (nx < 0 || nx >= n) continue;
+      count += Agrees(u[x], v[x], ua[nx], va[nx], tolerance);
+      count += Agrees(u[x], v[x], ub[nx], vb[nx], tolerance);
+      if (dx != 0) count += Agrees(u[x], v[x], u[nx], v[nx], tolerance);
+    }
+    return count;
+  };
+  for (int x = 1; x + 1 < n; ++x) {
+    const float pu = u[x], pv = v[x];
+    const int count = Agrees(pu, pv, ua[x - 1], va[x - 1], tolerance) +
+                      Agrees(pu, pv, ua[x], va[x], tolerance) +
+                      Agrees(pu, pv, ua[x + 1], va[x + 1], tolerance) +
+                      Agrees(pu, pv, u[x - 1], v[x - 1], tolerance) +
+                      Agrees(pu, pv, u[x + 1], v[x + 1], tolerance) +
+                      Agrees(pu, pv, ub[x - 1], vb[x - 1], tolerance) +
+                      Agrees(pu, pv, ub[x], vb[x], tolerance) +
+                      Agrees(pu, pv, ub[x + 1], vb[x + 1], tolerance);
+    flag[x] = static_cast<uint8_t>((mask[x] != 0) & (count < min_neighbours));
+  }
+  for (int x : {0, n - 1}) {
+    if (x < 0) continue;
+    flag[x] = static_cast<uint8_t>(mask[x] != 0 && count_at(x) < min_neighbours);
   }
 }
 
@@ -606,10 +636,12 @@ inline void CountAgreeing(const float* __restrict u, const float* __restrict v,
 void RemoveSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map) {
   const int rows = map->mask.rows, cols = map->mask.cols;
   const std::vector<float> zeros(cols, 0.0f);
+  const std::vector<float> missing(cols, kNaN);  // the rows beyond the image
   auto row_of = [&](const cv::Mat& image, int y) -> const float* {
+    if (y < 0 || y >= rows) return missing.data();
     return image.empty() ? zeros.data() : image.ptr<float>(y);
   };
-  std::vector<uint8_t> count(cols);
+  std::vector<uint8_t> flag(cols);
   std::vector<int> cleared_previous, cleared_current;
   auto clear = [&](int y, const std::vector<int>& xs) {
     uint8_t* mask = map->mask.ptr<uint8_t>(y);
@@ -624,21 +656,22 @@ void RemoveSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map)
     }
   };
   for (int y = 0; y < rows; ++y) {
-    std::fill(count.begin(), count.end(), uint8_t{0});
-    const float* u = row_of(map->proj_x, y);
-    const float* v = row_of(map->proj_y, y);
-    for (int ny = std::max(0, y - 1); ny <= std::min(rows - 1, y + 1); ++ny) {
-      const float* nu = row_of(map->proj_x, ny);
-      const float* nv = row_of(map->proj_y, ny);
-      for (int dx = -1; dx <= 1; ++dx) {
-        if (dx == 0 && ny == y) continue;
-        CountAgreeing(u, v, nu, nv, dx, cols, tolerance, count.data());
-      }
-    }
+    FlagSpeckles(row_of(map->proj_x, y), row_of(map->proj_y, y), row_of(map->proj_x, y - 1),
+                 row_of(map->proj_y, y - 1), row_of(map->proj_x, y + 1),
+                 row_of(map->proj_y, y + 1), map->mask.ptr<uint8_t>(y), cols, tolerance,
+                 min_neighbours, flag.data());
     cleared_current.clear();
-    const uint8_t* mask = map->mask.ptr<uint8_t>(y);
     for (int x = 0; x < cols; ++x) {
-      if (mask[x] != 0 && count[x] < min_neighbours) cleared_current.push_back(x);
+      // Skip 8 pixels at a time while none is flagged (the common case).
+      if ((x & 7) == 0 && x + 8 <= cols) {
+        uint64_t word = 0;
+        std::memcpy(&word, flag.data() + x, sizeof(word));
+        if (word == 0) {
+          x += 7;
+          continue;
+        }
+      }
+      if (flag[x] != 0) cleared_current.push_back(x);
     }
     if (y > 0) clear(y - 1, cleared_previous);
     std::swap(cleared_previous, cleared_current);
