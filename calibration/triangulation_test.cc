@@ -357,7 +357,8 @@ TEST(FastTriangulation, RegionRestrictsToItsPixels) {
   EXPECT_EQ(part.rejected, expected_rejected);
   // A wrong-sized mask is a clear error.
   region.mask = cv::Mat::zeros(10, 10, CV_8UC1);
-  EXPECT_THROW(triangulator.Triangulate(map, cv::Mat(), region), Error);
+  EXPECT_THROW_WITH_MESSAGE(triangulator.Triangulate(map, cv::Mat(), region), Error,
+                            "region mask", "320x240");
 }
 
 TEST(FastTriangulation, ThreadsGiveIdenticalClouds) {

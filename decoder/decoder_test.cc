@@ -767,7 +767,7 @@ TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
       for (size_t index : order) {
         // Not finished before the last frame: a clear error, nothing decoded.
         if (decoder.FramesAdded() + 1 == count) {
-          EXPECT_THROW(decoder.Finish(), Error);
+          EXPECT_THROW_WITH_MESSAGE(decoder.Finish(), Error, "has not been added");
         }
         decoder.AddFrame(index, capture.frame_set.images[index]);
       }
@@ -783,17 +783,22 @@ TEST(IncrementalDecode, BadFramesAreClearErrors) {
   const SyntheticCapture capture = RenderScene(SceneOptions());
   IncrementalDecoder decoder(capture.frame_set.manifest);
   const size_t count = capture.frame_set.images.size();
-  EXPECT_THROW(decoder.AddFrame(count, capture.frame_set.images[0]), Error);
-  EXPECT_THROW(decoder.AddFrame(0, cv::Mat(10, 10, CV_8UC1)), Error);
-  EXPECT_THROW(decoder.AddFrame(0, cv::Mat(300, 400, CV_32FC1)), Error);
+  EXPECT_THROW_WITH_MESSAGE(decoder.AddFrame(count, capture.frame_set.images[0]), Error,
+                            "out of range");
+  EXPECT_THROW_WITH_MESSAGE(decoder.AddFrame(0, cv::Mat(10, 10, CV_8UC1)), Error, "10x10",
+                            "400x300");
+  EXPECT_THROW_WITH_MESSAGE(decoder.AddFrame(0, cv::Mat(300, 400, CV_32FC1)), Error,
+                            "8- or 16-bit");
   decoder.AddFrame(0, capture.frame_set.images[0]);
-  EXPECT_THROW(decoder.AddFrame(0, capture.frame_set.images[0]), Error);
+  EXPECT_THROW_WITH_MESSAGE(decoder.AddFrame(0, capture.frame_set.images[0]), Error,
+                            "already added");
   cv::Mat sixteen;
   capture.frame_set.images[1].convertTo(sixteen, CV_16U, 257.0);
-  EXPECT_THROW(decoder.AddFrame(1, sixteen), Error);
+  EXPECT_THROW_WITH_MESSAGE(decoder.AddFrame(1, sixteen), Error, "same bit depth");
   DecoderOptions bad;
   bad.min_contrast = -1.0;
-  EXPECT_THROW(IncrementalDecoder(capture.frame_set.manifest, bad), Error);
+  EXPECT_THROW_WITH_MESSAGE(IncrementalDecoder(capture.frame_set.manifest, bad), Error,
+                            "min_contrast");
 }
 
 TEST(SyntheticDecode, WithoutWhiteAndBlackFramesInversesSuffice) {
