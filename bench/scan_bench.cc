@@ -1,11 +1,18 @@
 // Scan pipeline throughput on the virtual rig: pixels/s decoded and points/s triangulated
-// (midpoint and linear, both axes; ray–plane with one axis), single thread, plus the
-// one-time cost of building a Triangulator (ray tables) for a calibration.
+// (midpoint and linear, both axes; ray–plane with one axis), single thread, the table path
+// (Triangulator::Triangulate) side by side with the exact per-point path
+// (Triangulator::TriangulateExact) in the same run, plus the one-time cost of building a
+// Triangulator (ray and plane tables) for a calibration. Prints a summary of the ratios.
 //
 // Input: a sphere before a backdrop rendered with the default rig (1280×720 camera,
 // 1024×768 projector, Gray code x and y with inverses), rendered once at start-up.
 #include <benchmark/benchmark.h>
 #include <fmt/format.h>
+#include <opencv2/core/utility.hpp>
+
+#include <map>
+#include <string>
+#include <vector>
 
 #include "bench/bench_support.h"
 #include "calibration/scan.h"
@@ -58,38 +65,175 @@ void BM_Decode(benchmark::State& state) {
       static_cast<double>(input.frames.manifest.camera_width) * input.frames.manifest.camera_height,
       benchmark::Counter::kIsIterationInvariantRate);
 }
-BENCHMARK(BM_Decode)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Decode)->Unit(benchmark::kMillisecond)->Repetitions(5)->ReportAggregatesOnly(true);
 
+// The live loop's decode with IncrementalDecoder: frames added as they are captured, so
+// that after the last frame only its bit and the finish remain. Timed: AddFrame(last) +
+// Finish (the last-frame → map latency), beside BM_Decode (the batch decode, all of it
+// after the last frame); "total" adds every frame (the whole work, overlapped with
+// capture in the live loop).
+void BM_DecodeIncremental(benchmark::State& state) {
+  const Input& input = GetInput();
+  const bool last_frame_only = state.range(0) == 1;
+  const FrameSet& frames = input.frames;
+  const size_t count = frames.images.size();
+  IncrementalDecoder decoder(frames.manifest);
+  CorrespondenceMap map;
+  for (auto _ : state) {
+    if (last_frame_only) {
+      state.PauseTiming();
+      decoder.Reset();
+      for (size_t i = 0; i + 1 < count; ++i) decoder.AddFrame(i, frames.images[i]);
+      state.ResumeTiming();
+      decoder.AddFrame(count - 1, frames.images[count - 1]);
+    } else {
+      decoder.Reset();
+      for (size_t i = 0; i < count; ++i) decoder.AddFrame(i, frames.images[i]);
+    }
+    decoder.Finish(&map);
+    benchmark::DoNotOptimize(map.mask.data);
+  }
+  state.SetLabel(last_frame_only ? "last frame -> map" : "total");
+}
+BENCHMARK(BM_DecodeIncremental)
+    ->Arg(1)
+    ->Arg(0)
+    ->ArgName("last_frame_only")
+    ->Unit(benchmark::kMillisecond)
+    ->Repetitions(5)
+    ->ReportAggregatesOnly(true);
+
+// Arguments: method (0 midpoint, 1 linear, 2 ray–plane with x only), path (0 exact
+// per-point, 1 tables).
 void BM_Triangulate(benchmark::State& state) {
   const Input& input = GetInput();
   TriangulationOptions options;
   options.method = state.range(0) == 1 ? TriangulationMethod::kLinear : TriangulationMethod::kMidpoint;
   const bool one_axis = state.range(0) == 2;
+  const bool tables = state.range(1) == 1;
   const Triangulator triangulator(input.calibration, options);
   const CorrespondenceMap& map = one_axis ? input.map_x : input.map_xy;
   size_t points = 0;
   for (auto _ : state) {
-    const TriangulationResult result = triangulator.Triangulate(map, cv::Mat());
+    const TriangulationResult result = tables ? triangulator.Triangulate(map, cv::Mat())
+                                              : triangulator.TriangulateExact(map, cv::Mat());
     points = result.cloud.size();
     benchmark::DoNotOptimize(result.cloud.points.data());
   }
-  state.SetLabel(one_axis ? "ray-plane (x only)" : ToString(options.method));
+  state.SetLabel(fmt::format("{} {}", one_axis ? "ray-plane (x only)" : ToString(options.method),
+                             tables ? "tables" : "exact"));
   state.counters["points"] = static_cast<double>(points);
   state.counters["points/s"] =
       benchmark::Counter(static_cast<double>(points), benchmark::Counter::kIsIterationInvariantRate);
 }
-BENCHMARK(BM_Triangulate)->Arg(0)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Triangulate)
+    ->ArgsProduct({{0, 1, 2}, {0, 1}})
+    ->ArgNames({"method", "tables"})
+    ->Unit(benchmark::kMillisecond)
+    ->Repetitions(5)
+    ->ReportAggregatesOnly(true);
 
 void BM_TriangulatorSetUp(benchmark::State& state) {
   const Input& input = GetInput();
+  TriangulationOptions options;
+  options.num_threads = static_cast<int>(state.range(0));
+  size_t bytes = 0;
   for (auto _ : state) {
-    Triangulator triangulator(input.calibration);
+    Triangulator triangulator(input.calibration, options);
+    bytes = triangulator.TableBytes();
     benchmark::DoNotOptimize(&triangulator);
   }
+  state.counters["table MB"] = static_cast<double>(bytes) / 1e6;
 }
-BENCHMARK(BM_TriangulatorSetUp)->Unit(benchmark::kMillisecond);
+// Threads: the set-up runs in cv::parallel_for_ (OpenCV's pool); `threads` only labels the
+// pool size set for the run.
+BENCHMARK(BM_TriangulatorSetUp)
+    ->Arg(1)
+    ->Arg(2)
+    ->ArgName("threads")
+    ->Setup([](const benchmark::State& state) { cv::setNumThreads(static_cast<int>(state.range(0))); })
+    ->Teardown([](const benchmark::State&) { cv::setNumThreads(-1); })
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Repetitions(5)
+    ->ReportAggregatesOnly(true);
+
+// Keeps the median CPU time (ms) and points of every benchmark for the summary.
+class SummaryReporter : public bench::DisplayReporter {
+ public:
+  struct Entry {
+    double cpu_ms = 0.0;
+    double real_ms = 0.0;
+    double points = 0.0;
+  };
+  void ReportRuns(const std::vector<Run>& runs) override {
+    for (const Run& run : runs) {
+      if (run.error_occurred) continue;
+      std::string key = run.run_name.function_name;
+      if (!run.run_name.args.empty()) key += "/" + run.run_name.args;
+      const bool median = run.run_type == Run::RT_Aggregate && run.aggregate_name == "median";
+      if (median || (run.run_type == Run::RT_Iteration && entries_.count(key) == 0)) {
+        Entry entry{run.GetAdjustedCPUTime(), run.GetAdjustedRealTime(), 0.0};
+        const auto points = run.counters.find("points");
+        if (points != run.counters.end()) entry.points = points->second.value;
+        entries_[key] = entry;
+      }
+    }
+    DisplayReporter::ReportRuns(runs);
+  }
+  Entry Get(const std::string& key) const {
+    const auto it = entries_.find(key);
+    return it == entries_.end() ? Entry{} : it->second;
+  }
+
+ private:
+  std::map<std::string, Entry> entries_;
+};
+
+// Ratios use CPU time (medians of 5): on a shared machine the wall clock of a
+// single-threaded run also counts the time other processes held its core.
+void PrintSummary(const SummaryReporter& reporter) {
+  fmt::print("\nSummary (1280x720 camera, 1024x768 projector, 1 thread, CPU-time medians)\n");
+  fmt::print("  {:<22} {:>9} {:>12} {:>9} {:>12} {:>8}\n", "", "exact ms", "exact Mpt/s",
+             "tables ms", "tables Mpt/s", "speed-up");
+  const char* names[] = {"midpoint", "linear", "ray-plane (x only)"};
+  for (int method = 0; method < 3; ++method) {
+    const auto exact = reporter.Get(fmt::format("BM_Triangulate/method:{}/tables:0", method));
+    const auto tables = reporter.Get(fmt::format("BM_Triangulate/method:{}/tables:1", method));
+    if (exact.cpu_ms <= 0.0 || tables.cpu_ms <= 0.0) continue;
+    fmt::print("  {:<22} {:>9.2f} {:>12.2f} {:>9.2f} {:>12.2f} {:>7.1f}x\n", names[method],
+               exact.cpu_ms, exact.points / exact.cpu_ms * 1e-3, tables.cpu_ms,
+               tables.points / tables.cpu_ms * 1e-3, exact.cpu_ms / tables.cpu_ms);
+  }
+  const auto batch = reporter.Get("BM_Decode");
+  const auto last = reporter.Get("BM_DecodeIncremental/last_frame_only:1");
+  const auto total = reporter.Get("BM_DecodeIncremental/last_frame_only:0");
+  if (batch.cpu_ms > 0.0 && last.cpu_ms > 0.0) {
+    fmt::print("  decode after the last frame: batch {:.2f} ms, incremental {:.2f} ms ({:.1f}x); "
+               "incremental total {:.2f} ms (CPU)\n",
+               batch.cpu_ms, last.cpu_ms, batch.cpu_ms / last.cpu_ms, total.cpu_ms);
+  }
+  for (int threads : {1, 2}) {
+    const auto set_up = reporter.Get(fmt::format("BM_TriangulatorSetUp/threads:{}", threads));
+    if (set_up.real_ms > 0.0) {
+      // With one thread the CPU time is all of the work; with two it counts only the main
+      // thread's share. Real time on a loaded machine also counts waiting for a core.
+      fmt::print("  table set-up, {} thread(s): {:.1f} ms real, {:.1f} ms CPU (main thread)\n",
+                 threads, set_up.real_ms, set_up.cpu_ms);
+    }
+  }
+}
 
 }  // namespace
 }  // namespace sope
 
-SOPE_BENCHMARK_MAIN();
+int main(int argc, char** argv) {
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  sope::GetInput();  // render and decode before timing
+  sope::SummaryReporter reporter;
+  benchmark::RunSpecifiedBenchmarks(&reporter);
+  sope::PrintSummary(reporter);
+  benchmark::Shutdown();
+  return 0;
+}

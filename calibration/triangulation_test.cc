@@ -6,6 +6,7 @@
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
 #include "tests/test_support.h"
@@ -17,7 +18,9 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 // `vertical`: the projector sits above the camera instead of to its right (rows then
 // carry the depth information, as a y-only pattern set needs).
-RigCalibration TestRig(bool vertical = false) {
+// `wide`: a wide-angle projector with stronger distortion that lights the camera's corners
+// (where the camera's own distortion is largest).
+RigCalibration TestRig(bool vertical = false, bool wide = false) {
   RigCalibration rig;
   rig.camera.width = 320;
   rig.camera.height = 240;
@@ -27,6 +30,11 @@ RigCalibration TestRig(bool vertical = false) {
   rig.projector.height = 192;
   rig.projector.matrix << 380, 0, 128.5, 0, 380, 95.0, 0, 0, 1;
   rig.projector.distortion = {-0.03, 0.01, 0.0005, 0.0, 0.0};
+  if (wide) {
+    rig.camera.distortion = {-0.2, 0.08, 0.001, -0.0015, -0.01};
+    rig.projector.matrix << 170, 0, 128.5, 0, 171, 95.0, 0, 0, 1;
+    rig.projector.distortion = {-0.12, 0.03, 0.0005, -0.0004, 0.0};
+  }
   // Projector 0.2 m to the camera's right (or above it), turned to look at (0, 0, 0.6).
   const Eigen::Vector3d projector_center =
       vertical ? Eigen::Vector3d(0.0, -0.2, 0.0) : Eigen::Vector3d(0.2, 0.0, 0.0);
@@ -214,6 +222,198 @@ TEST(Triangulation, MismatchedSizesAreClearErrors) {
   TriangulationOptions bad;
   bad.max_depth = -1;
   EXPECT_THROW_WITH_MESSAGE(Triangulate(map, rig, cv::Mat(), bad), Error, "depth band", "-1");
+}
+
+// Fast path (tables, closed form) against the exact per-point path on the same map: the
+// same pixels accepted, points within 1e-6 m.
+void ExpectSameAsExact(const Triangulator& triangulator, const CorrespondenceMap& map,
+                       double tolerance_m, size_t* compared_in_corners = nullptr) {
+  const TriangulationResult fast = triangulator.Triangulate(map, cv::Mat());
+  const TriangulationResult exact = triangulator.TriangulateExact(map, cv::Mat());
+  ASSERT_GT(exact.cloud.size(), 0u);
+  ASSERT_EQ(fast.cloud.size(), exact.cloud.size());
+  EXPECT_EQ(fast.rejected, exact.rejected);
+  ASSERT_EQ(fast.pixels, exact.pixels);
+  double max_depth_error = 0.0, max_point_error = 0.0;
+  size_t corners = 0;
+  const int width = map.width(), height = map.height();
+  constexpr int kCornerPx = 24;
+  for (size_t i = 0; i < fast.cloud.size(); ++i) {
+    const cv::Point p = fast.pixels[i];
+    const double dz = std::abs(fast.depth.at<float>(p) - exact.depth.at<float>(p));
+    max_depth_error = std::max<double>(max_depth_error, dz);
+    max_point_error = std::max<double>(
+        max_point_error, (fast.cloud.points[i] - exact.cloud.points[i]).norm());
+    const bool corner = (p.x < kCornerPx || p.x >= width - kCornerPx) &&
+                        (p.y < kCornerPx || p.y >= height - kCornerPx);
+    corners += corner;
+  }
+  EXPECT_LE(max_depth_error, tolerance_m) << "metres";
+  EXPECT_LE(max_point_error, tolerance_m) << "metres";
+  ::testing::Test::RecordProperty("max_depth_error_nm", static_cast<int>(max_depth_error * 1e9));
+  if (compared_in_corners != nullptr) *compared_in_corners = corners;
+}
+
+struct FastCase {
+  bool x_axis, y_axis;
+  TriangulationMethod method;
+  bool wide;
+};
+
+class FastTriangulation : public ::testing::TestWithParam<FastCase> {};
+
+TEST_P(FastTriangulation, MatchesTheExactPathWithin1e6Metres) {
+  const FastCase c = GetParam();
+  const RigCalibration rig = TestRig(/*vertical=*/!c.x_axis, c.wide);
+  TriangulationOptions options;
+  options.method = c.method;
+  const Triangulator triangulator(rig, options);
+  cv::Mat truth;
+  // Sub-pixel coordinates (as phase-shift decoding gives), integer ones (Gray code), and
+  // sub-pixel ones with noise (some rejected by the reprojection test).
+  CorrespondenceMap map = PlaneMap(rig, c.x_axis, c.y_axis, false, &truth);
+  size_t corners = 0;
+  ExpectSameAsExact(triangulator, map, 1e-6, &corners);
+  if (c.wide) {
+    EXPECT_GT(corners, 1000u) << "the wide rig must light the camera's corners";
+  }
+  ExpectSameAsExact(triangulator, PlaneMap(rig, c.x_axis, c.y_axis, true, &truth), 1e-6);
+  cv::RNG rng(7);
+  for (cv::Mat* axis : {&map.proj_x, &map.proj_y}) {
+    if (axis->empty()) continue;
+    cv::Mat noise(axis->size(), CV_32FC1);
+    rng.fill(noise, cv::RNG::NORMAL, 0.0, 1.5);
+    *axis += noise;
+  }
+  ExpectSameAsExact(triangulator, map, 1e-6);
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    Methods, FastTriangulation,
+    ::testing::Values(FastCase{true, true, TriangulationMethod::kMidpoint, false},
+                      FastCase{true, true, TriangulationMethod::kLinear, false},
+                      FastCase{true, false, TriangulationMethod::kMidpoint, false},
+                      FastCase{false, true, TriangulationMethod::kMidpoint, false},
+                      FastCase{true, true, TriangulationMethod::kMidpoint, true},
+                      FastCase{true, true, TriangulationMethod::kLinear, true},
+                      FastCase{true, false, TriangulationMethod::kMidpoint, true},
+                      FastCase{false, true, TriangulationMethod::kMidpoint, true}));
+
+TEST(FastTriangulation, CoordinatesOffTheTablesTakeTheExactPath) {
+  for (const bool two_axes : {true, false}) {
+    const RigCalibration rig = TestRig();
+    cv::Mat truth;
+    CorrespondenceMap map = PlaneMap(rig, true, two_axes, false, &truth);
+    // Push a band of columns just off the projector (−0.4 px): still triangulated, by
+    // the exact path's direct undistortion.
+    int pushed = 0;
+    for (int y = 0; y < map.height(); y += 3) {
+      for (int x = 0; x < map.width(); x += 5) {
+        if (map.mask.at<uint8_t>(y, x) == 0) continue;
+        map.proj_x.at<float>(y, x) = -0.4f;
+        ++pushed;
+      }
+    }
+    ASSERT_GT(pushed, 100);
+    TriangulationOptions options;
+    options.max_reprojection_px = 0.0;  // keep the moved points
+    const Triangulator triangulator(rig, options);
+    ExpectSameAsExact(triangulator, map, 1e-6);
+  }
+}
+
+TEST(FastTriangulation, RegionRestrictsToItsPixels) {
+  const RigCalibration rig = TestRig();
+  cv::Mat truth;
+  const CorrespondenceMap map = PlaneMap(rig, true, true, false, &truth);
+  const Triangulator triangulator(rig);
+  const TriangulationResult full = triangulator.Triangulate(map, cv::Mat());
+  TriangulationRegion region;
+  region.roi = cv::Rect(40, 30, 200, 150);
+  region.mask = cv::Mat::zeros(map.mask.size(), CV_8UC1);
+  cv::circle(region.mask, cv::Point(150, 110), 60, cv::Scalar(255), cv::FILLED);
+  const TriangulationResult part = triangulator.Triangulate(map, cv::Mat(), region);
+  size_t expected = 0, expected_rejected = 0;
+  for (size_t i = 0; i < full.cloud.size(); ++i) {
+    const cv::Point p = full.pixels[i];
+    if (!region.roi.contains(p) || region.mask.at<uint8_t>(p) == 0) continue;
+    ASSERT_LT(expected, part.cloud.size());
+    EXPECT_EQ(part.pixels[expected], p);
+    EXPECT_EQ(part.cloud.points[expected], full.cloud.points[i]);
+    ++expected;
+  }
+  EXPECT_EQ(part.cloud.size(), expected);
+  EXPECT_GT(expected, 5000u);
+  for (int y = 0; y < map.height(); ++y) {
+    for (int x = 0; x < map.width(); ++x) {
+      const bool inside = region.roi.contains(cv::Point(x, y)) && region.mask.at<uint8_t>(y, x);
+      if (!inside) {
+        EXPECT_TRUE(std::isnan(part.depth.at<float>(y, x)));
+      } else if (map.mask.at<uint8_t>(y, x) != 0 && std::isnan(full.depth.at<float>(y, x))) {
+        ++expected_rejected;
+      }
+    }
+  }
+  EXPECT_EQ(part.rejected, expected_rejected);
+  // A wrong-sized mask is a clear error.
+  region.mask = cv::Mat::zeros(10, 10, CV_8UC1);
+  EXPECT_THROW_WITH_MESSAGE(triangulator.Triangulate(map, cv::Mat(), region), Error,
+                            "region mask", "320x240");
+}
+
+TEST(FastTriangulation, ThreadsGiveIdenticalClouds) {
+  for (const bool two_axes : {true, false}) {
+    const RigCalibration rig = TestRig();
+    cv::Mat truth;
+    const CorrespondenceMap map = PlaneMap(rig, true, two_axes, false, &truth);
+    TriangulationOptions threaded;
+    threaded.num_threads = 3;
+    const TriangulationResult one = Triangulator(rig).Triangulate(map, cv::Mat());
+    const TriangulationResult three = Triangulator(rig, threaded).Triangulate(map, cv::Mat());
+    ASSERT_EQ(one.cloud.size(), three.cloud.size());
+    EXPECT_EQ(one.cloud.points, three.cloud.points);
+    EXPECT_EQ(one.pixels, three.pixels);
+    EXPECT_EQ(one.rejected, three.rejected);
+  }
+}
+
+TEST(FastTriangulation, RayTablesMatchPerPixelUndistortion) {
+  // The tables' rays against CameraModel::CamFromImage at pixels all over the image
+  // (corners included), through TriangulatePixel (which undistorts per call) and the
+  // table path on a one-pixel map.
+  const RigCalibration rig = TestRig(false, true);
+  TriangulationOptions options;
+  options.max_reprojection_px = 0.0;
+  const Triangulator triangulator(rig, options);
+  CorrespondenceMap map;
+  map.projector_width = rig.projector.width;
+  map.projector_height = rig.projector.height;
+  const cv::Size size(rig.camera.width, rig.camera.height);
+  map.mask = cv::Mat::zeros(size, CV_8UC1);
+  map.proj_x = cv::Mat(size, CV_32FC1, cv::Scalar(100.25f));
+  map.proj_y = cv::Mat(size, CV_32FC1, cv::Scalar(90.5f));
+  for (int y = 0; y < size.height; y += 7) {
+    for (int x = 0; x < size.width; x += 7) map.mask.at<uint8_t>(y, x) = 255;
+  }
+  const TriangulationResult result = triangulator.Triangulate(map, cv::Mat());
+  ASSERT_GT(result.cloud.size(), 1000u);
+  double max_error = 0.0;
+  for (size_t i = 0; i < result.cloud.size(); ++i) {
+    const cv::Point p = result.pixels[i];
+    const auto point = triangulator.TriangulatePixel(Eigen::Vector2d(p.x, p.y), 100.25, 90.5);
+    ASSERT_TRUE(point.has_value());
+    max_error = std::max(max_error, (result.cloud.points[i].cast<double>() - *point).norm());
+  }
+  // Float rays (8 bytes per pixel): ~1e-7 relative.
+  EXPECT_LT(max_error, 5e-6) << "metres";
+}
+
+TEST(FastTriangulation, TablesAreCompact) {
+  const RigCalibration rig = TestRig();
+  const Triangulator triangulator(rig);
+  // Float pairs: camera rays, projector rays (+ margin), two plane tables.
+  const size_t camera = 320 * 240, projector = 256 * 192, margin = (256 + 16) * (192 + 16);
+  EXPECT_EQ(triangulator.TableBytes(), 8 * (camera + margin + 2 * projector));
 }
 
 }  // namespace

@@ -304,7 +304,8 @@ void FinishPixels(int n, const uint8_t* __restrict code_x_high,
                   const AxisFinish& axis_y, const Wide* __restrict contrast,
                   const Margin* __restrict margin, int min_contrast, int solid_margin,
                   float margin_scale, float* __restrict out_x, float* __restrict out_y,
-                  uint8_t* __restrict mask, float* __restrict confidence) {
+                  uint8_t* __restrict mask, float* __restrict confidence,
+                  uint8_t* __restrict boundary) {
   const float* __restrict lut_x = axis_x.lut;
   const float* __restrict lut_y = axis_y.lut;
   for (int i = 0; i < n; ++i) {
@@ -322,25 +323,23 @@ void FinishPixels(int n, const uint8_t* __restrict code_x_high,
     const float relative =
         static_cast<float>(m) / (margin_scale * static_cast<float>(std::max(c, 1)));
     confidence[i] = valid ? std::min(relative, 1.0f) : 0.0f;
+    // Candidates of the second pass: weak bits, enough contrast, solid decided bits.
+    boundary[i] = static_cast<uint8_t>(!no_weak & (c >= min_contrast) & (m >= solid_margin));
   }
   for (int i = 0; i < n; ++i) {
-    // Skip 8 pixels at a time while none has a weak bit (the common case).
+    // Skip 8 pixels at a time while none is a candidate (the common case; on dark or
+    // speckled captures many pixels have weak bits, but few enough contrast).
     if ((i & 7) == 0 && i + 8 <= n) {
-      uint64_t any = 0, word = 0;
-      for (const uint8_t* plane : {weak_x_high, weak_x_low, weak_y_high, weak_y_low}) {
-        std::memcpy(&word, plane + i, sizeof(word));
-        any |= word;
-      }
-      if (any == 0) {
+      uint64_t word = 0;
+      std::memcpy(&word, boundary + i, sizeof(word));
+      if (word == 0) {
         i += 7;
         continue;
       }
     }
+    if (boundary[i] == 0) continue;
     const int weak_x = (weak_x_high[i] << 8) | weak_x_low[i];
     const int weak_y = (weak_y_high[i] << 8) | weak_y_low[i];
-    if ((weak_x | weak_y) == 0 || contrast[i] < min_contrast || margin[i] < solid_margin) {
-      continue;
-    }
     const AxisValue vx = BoundaryCoordinate(axis_x, (code_x_high[i] << 8) | code_x_low[i], weak_x);
     const AxisValue vy = BoundaryCoordinate(axis_y, (code_y_high[i] << 8) | code_y_low[i], weak_y);
     if (!vx.ok || !vy.ok || std::isnan(vx.coordinate) || std::isnan(vy.coordinate)) continue;
@@ -376,6 +375,7 @@ struct Workspace {
   alignas(64) uint8_t direct_dominates[kChunkPixels];
   alignas(64) uint8_t too_dark[kChunkPixels];
   alignas(64) float discard[kChunkPixels];  // coordinates of an axis that is not coded
+  alignas(64) uint8_t boundary[kChunkPixels];  // FinishPixels' second-pass candidates
 };
 
 template <typename Pixel>
@@ -523,7 +523,7 @@ class ChunkDecoder {
                  kSolidMarginFactor * std::max(thresholds_.min_bit_margin, 1), static_cast<float>(thresholds_.margin_scale),
                  outputs_.proj[kAxisX] ? outputs_.proj[kAxisX] + begin : ws.discard,
                  outputs_.proj[kAxisY] ? outputs_.proj[kAxisY] + begin : ws.discard,
-                 outputs_.mask + begin, outputs_.confidence + begin);
+                 outputs_.mask + begin, outputs_.confidence + begin, ws.boundary);
   }
 
   const DecodePlan& plan_;
@@ -585,19 +585,49 @@ Thresholds MakeThresholds(const DecodePlan& plan, const DecoderOptions& options,
   return thresholds;
 }
 
-// Adds to count[x] (x in [0, n)) whether the neighbour at column x + dx of the rows
-// (nu, nv) agrees with (u, v) within `tolerance` on both axes. Invalid pixels hold NaN,
-// whose comparisons are false, so no mask is needed; an uncoded axis passes one row of
-// zeros as both. Branch-free so that it vectorises.
-inline void CountAgreeing(const float* __restrict u, const float* __restrict v,
-                          const float* __restrict nu, const float* __restrict nv, int dx, int n,
-                          float tolerance, uint8_t* __restrict count) {
-  const int begin = std::max(0, -dx), end = std::min(n, n - dx);
-  for (int x = begin; x < end; ++x) {
-    const float du = nu[x + dx] - u[x], dv = nv[x + dx] - v[x];
-    const bool agree = (du <= tolerance) & (du >= -tolerance) & (dv <= tolerance) &
-                       (dv >= -tolerance);
-    count[x] = static_cast<uint8_t>(count[x] + agree);
+// Whether neighbour (nu, nv) agrees with (u, v) within `tolerance` on both axes. Invalid
+// pixels hold NaN, whose comparisons are false, so no mask is needed; an uncoded axis
+// passes zeros for both.
+inline bool Agrees(float u, float v, float nu, float nv, float tolerance) {
+  const float du = nu - u, dv = nv - v;
+  return (du <= tolerance) & (du >= -tolerance) & (dv <= tolerance) & (dv >= -tolerance);
+}
+
+// flag[x] = 1 where a valid pixel of row (u, v) has fewer than `min_neighbours` agreeing
+// neighbours among its 8 in the rows above (ua, va), itself and below (ub, vb) (missing
+// rows are NaN). One fused pass: the counts stay in registers and the interior loop is
+// branch-free, so that it vectorises.
+void FlagSpeckles(const float* __restrict u, const float* __restrict v,
+                  const float* __restrict ua, const float* __restrict va,
+                  const float* __restrict ub, const float* __restrict vb,
+                  const uint8_t* __restrict mask, int n, float tolerance, int min_neighbours,
+                  uint8_t* __restrict flag) {
+  const auto count_at = [&](int x) {
+    int count = 0;
+    for (int dx = -1; dx <= 1; ++dx) {
+      const int nx = x + dx;
+      if (nx < 0 || nx >= n) continue;
+      count += Agrees(u[x], v[x], ua[nx], va[nx], tolerance);
+      count += Agrees(u[x], v[x], ub[nx], vb[nx], tolerance);
+      if (dx != 0) count += Agrees(u[x], v[x], u[nx], v[nx], tolerance);
+    }
+    return count;
+  };
+  for (int x = 1; x + 1 < n; ++x) {
+    const float pu = u[x], pv = v[x];
+    const int count = Agrees(pu, pv, ua[x - 1], va[x - 1], tolerance) +
+                      Agrees(pu, pv, ua[x], va[x], tolerance) +
+                      Agrees(pu, pv, ua[x + 1], va[x + 1], tolerance) +
+                      Agrees(pu, pv, u[x - 1], v[x - 1], tolerance) +
+                      Agrees(pu, pv, u[x + 1], v[x + 1], tolerance) +
+                      Agrees(pu, pv, ub[x - 1], vb[x - 1], tolerance) +
+                      Agrees(pu, pv, ub[x], vb[x], tolerance) +
+                      Agrees(pu, pv, ub[x + 1], vb[x + 1], tolerance);
+    flag[x] = static_cast<uint8_t>((mask[x] != 0) & (count < min_neighbours));
+  }
+  for (int x : {0, n - 1}) {
+    if (x < 0) continue;
+    flag[x] = static_cast<uint8_t>(mask[x] != 0 && count_at(x) < min_neighbours);
   }
 }
 
@@ -607,10 +637,12 @@ inline void CountAgreeing(const float* __restrict u, const float* __restrict v,
 void RemoveSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map) {
   const int rows = map->mask.rows, cols = map->mask.cols;
   const std::vector<float> zeros(cols, 0.0f);
+  const std::vector<float> missing(cols, kNaN);  // the rows beyond the image
   auto row_of = [&](const cv::Mat& image, int y) -> const float* {
+    if (y < 0 || y >= rows) return missing.data();
     return image.empty() ? zeros.data() : image.ptr<float>(y);
   };
-  std::vector<uint8_t> count(cols);
+  std::vector<uint8_t> flag(cols);
   std::vector<int> cleared_previous, cleared_current;
   auto clear = [&](int y, const std::vector<int>& xs) {
     uint8_t* mask = map->mask.ptr<uint8_t>(y);
@@ -625,21 +657,22 @@ void RemoveSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map)
     }
   };
   for (int y = 0; y < rows; ++y) {
-    std::fill(count.begin(), count.end(), uint8_t{0});
-    const float* u = row_of(map->proj_x, y);
-    const float* v = row_of(map->proj_y, y);
-    for (int ny = std::max(0, y - 1); ny <= std::min(rows - 1, y + 1); ++ny) {
-      const float* nu = row_of(map->proj_x, ny);
-      const float* nv = row_of(map->proj_y, ny);
-      for (int dx = -1; dx <= 1; ++dx) {
-        if (dx == 0 && ny == y) continue;
-        CountAgreeing(u, v, nu, nv, dx, cols, tolerance, count.data());
-      }
-    }
+    FlagSpeckles(row_of(map->proj_x, y), row_of(map->proj_y, y), row_of(map->proj_x, y - 1),
+                 row_of(map->proj_y, y - 1), row_of(map->proj_x, y + 1),
+                 row_of(map->proj_y, y + 1), map->mask.ptr<uint8_t>(y), cols, tolerance,
+                 min_neighbours, flag.data());
     cleared_current.clear();
-    const uint8_t* mask = map->mask.ptr<uint8_t>(y);
     for (int x = 0; x < cols; ++x) {
-      if (mask[x] != 0 && count[x] < min_neighbours) cleared_current.push_back(x);
+      // Skip 8 pixels at a time while none is flagged (the common case).
+      if ((x & 7) == 0 && x + 8 <= cols) {
+        uint64_t word = 0;
+        std::memcpy(&word, flag.data() + x, sizeof(word));
+        if (word == 0) {
+          x += 7;
+          continue;
+        }
+      }
+      if (flag[x] != 0) cleared_current.push_back(x);
     }
     if (y > 0) clear(y - 1, cleared_previous);
     std::swap(cleared_previous, cleared_current);
@@ -997,6 +1030,253 @@ CorrespondenceMap ReadCorrespondenceMap(const std::string& directory) {
   SOPE_CHECK(map.width() == camera_width && map.height() == camera_height,
              "{}: images are {}x{} but correspondence.json says {}x{}", directory, map.width(),
              map.height(), camera_width, camera_height);
+  return map;
+}
+
+}  // namespace sope
+
+namespace sope {
+
+// Whole-image state of the incremental path (8-bit, every bit against its inverse): the
+// workspace of ChunkDecoder's hot path for all pixels at once, so that each bit can be
+// accumulated when its frames arrive; Finish runs ChunkDecoder's finish per chunk.
+struct IncrementalDecoder::Impl {
+  using Pixel = uint8_t;
+  FrameSetManifest manifest;
+  DecoderOptions options;
+  internal::DecodePlan plan;
+  internal::Thresholds thresholds;
+  std::vector<cv::Mat> images;  // by manifest index; empty until added
+  size_t added = 0;
+  int depth = -1;  // CV_8U / CV_16U of the first frame
+  bool has_white_black = false;
+  // The per-frame path applies (decided by the plan and the first frame's depth).
+  bool incremental = false;
+  bool prepared = false;  // white/black (or the uniform thresholds) are in
+  size_t total = 0;       // pixels
+  // Next bit of each axis to accumulate (bits_msb_first order).
+  std::array<size_t, 2> next_bit{0, 0};
+  std::vector<uint8_t> code[2][2], weak[2][2];
+  std::vector<Pixel> margin, min_margin, max_diff;
+  std::vector<int16_t> contrast, white_plus_black;
+  std::vector<uint8_t> boundary;
+
+  const Pixel* Frame(int index) const { return images[index].ptr<Pixel>(); }
+
+  // Runs kernel(begin, n) over the image in chunks (the kernels' prefetch distance).
+  template <typename Kernel>
+  void ForChunks(Kernel&& kernel) {
+    for (size_t begin = 0; begin < total; begin += internal::kChunkPixels) {
+      kernel(begin, static_cast<int>(std::min<size_t>(internal::kChunkPixels, total - begin)));
+    }
+  }
+
+  void Start() {
+    total = static_cast<size_t>(manifest.camera_width) * manifest.camera_height;
+    for (int axis = 0; axis < 2; ++axis) {
+      for (int plane = 0; plane < 2; ++plane) {
+        code[axis][plane].assign(total, 0);
+        weak[axis][plane].assign(total, 0);
+      }
+    }
+    margin.assign(total, std::numeric_limits<Pixel>::max());
+    min_margin.resize(total);
+    contrast.resize(total);
+    white_plus_black.resize(total);
+    boundary.resize(internal::kChunkPixels);
+    if (!has_white_black) {
+      max_diff.assign(total, 0);
+      ForChunks([&](size_t begin, int n) {
+        internal::ComputeBitThresholds(n, static_cast<const int16_t*>(nullptr),
+                                       thresholds.min_bit_margin,
+                                       thresholds.relative_bit_margin, min_margin.data() + begin);
+      });
+      prepared = true;
+    }
+  }
+
+  // Does every step whose frames are in: white/black first, then each axis's bits in order.
+  void Progress() {
+    if (!prepared) {
+      if (images[plan.white].empty() || images[plan.black].empty()) return;
+      ForChunks([&](size_t begin, int n) {
+        internal::ComputeWhiteBlack(Frame(plan.white) + begin, Frame(plan.black) + begin, n,
+                                    contrast.data() + begin, white_plus_black.data() + begin);
+        internal::ComputeBitThresholds(n, contrast.data() + begin, thresholds.min_bit_margin,
+                                       thresholds.relative_bit_margin, min_margin.data() + begin);
+      });
+      prepared = true;
+    }
+    for (int axis : {internal::kAxisX, internal::kAxisY}) {
+      const std::vector<internal::BitFrames>& bits = plan.axes[axis].bits_msb_first;
+      const size_t high_bits = bits.size() > 8 ? bits.size() - 8 : 0;
+      for (; next_bit[axis] < bits.size(); ++next_bit[axis]) {
+        const size_t k = next_bit[axis];
+        const internal::BitFrames& bit = bits[k];
+        if (images[bit.pattern].empty() || images[bit.inverse].empty()) break;
+        const int plane = k < high_bits ? internal::kHigh : internal::kLow;
+        uint8_t* code_plane = code[axis][plane].data();
+        uint8_t* weak_plane = weak[axis][plane].data();
+        // The kernel variants of ChunkDecoder::Decode's hot path.
+        ForChunks([&](size_t begin, int n) {
+          const Pixel* pattern = Frame(bit.pattern) + begin;
+          const Pixel* inverse = Frame(bit.inverse) + begin;
+          if (has_white_black && thresholds.relative_bit_margin > 0.0f) {
+            internal::AccumulateInverseBit<Pixel, Pixel, 1, false, true>(
+                pattern, inverse, n, min_margin.data() + begin, code_plane + begin,
+                weak_plane + begin, margin.data() + begin, nullptr);
+          } else if (has_white_black) {
+            internal::AccumulateInverseBit<Pixel, Pixel, 1, false, false>(
+                pattern, inverse, n, min_margin.data() + begin, code_plane + begin,
+                weak_plane + begin, margin.data() + begin, nullptr);
+          } else {
+            internal::AccumulateInverseBit<Pixel, Pixel, 1, true>(
+                pattern, inverse, n, min_margin.data() + begin, code_plane + begin,
+                weak_plane + begin, margin.data() + begin, max_diff.data() + begin);
+          }
+        });
+      }
+    }
+  }
+
+  void FinishIncremental(CorrespondenceMap* map) {
+    if (!has_white_black) {
+      for (size_t i = 0; i < total; ++i) contrast[i] = max_diff[i];
+    }
+    // The map's images, as Decode prepares them.
+    map->projector_width = manifest.projector_width;
+    map->projector_height = manifest.projector_height;
+    map->step_x = map->step_y = 1.0f;
+    const cv::Size size(manifest.camera_width, manifest.camera_height);
+    internal::Outputs outputs;
+    for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+      const internal::AxisPlan& axis_plan = plan.axes[static_cast<int>(axis)];
+      cv::Mat& coordinate = axis == PatternAxis::kX ? map->proj_x : map->proj_y;
+      if (!axis_plan.coded) {
+        coordinate.release();
+        continue;
+      }
+      internal::PrepareOutput(size, CV_32FC1, &coordinate);
+      outputs.proj[static_cast<int>(axis)] = coordinate.ptr<float>();
+      (axis == PatternAxis::kX ? map->step_x : map->step_y) =
+          static_cast<float>(1 << axis_plan.lowest_bit);
+    }
+    internal::PrepareOutput(size, CV_8UC1, &map->mask);
+    internal::PrepareOutput(size, CV_32FC1, &map->confidence);
+    outputs.mask = map->mask.ptr<uint8_t>();
+    outputs.confidence = map->confidence.ptr<float>();
+    // ChunkDecoder::Finish per chunk.
+    static const float kUncodedLut[1] = {0.0f};
+    const auto axis_finish = [&](const internal::AxisPlan& axis) {
+      internal::AxisFinish finish;
+      finish.lut = axis.coded ? axis.coordinate_of_code.data() : kUncodedLut;
+      finish.gray = axis.code == PatternCode::kGray;
+      finish.max_neighbour_gap = static_cast<float>(1 << axis.lowest_bit) * 1.001f;
+      return finish;
+    };
+    const internal::AxisFinish finish_x = axis_finish(plan.axes[internal::kAxisX]);
+    const internal::AxisFinish finish_y = axis_finish(plan.axes[internal::kAxisY]);
+    std::vector<float> discard(internal::kChunkPixels);
+    const int solid_margin =
+        internal::kSolidMarginFactor * std::max(thresholds.min_bit_margin, 1);
+    ForChunks([&](size_t begin, int n) {
+      using internal::kAxisX;
+      using internal::kAxisY;
+      using internal::kHigh;
+      using internal::kLow;
+      internal::FinishPixels(
+          n, code[kAxisX][kHigh].data() + begin, code[kAxisX][kLow].data() + begin,
+          code[kAxisY][kHigh].data() + begin, code[kAxisY][kLow].data() + begin,
+          weak[kAxisX][kHigh].data() + begin, weak[kAxisX][kLow].data() + begin,
+          weak[kAxisY][kHigh].data() + begin, weak[kAxisY][kLow].data() + begin, finish_x,
+          finish_y, contrast.data() + begin, margin.data() + begin, thresholds.min_contrast,
+          solid_margin, static_cast<float>(thresholds.margin_scale),
+          outputs.proj[kAxisX] ? outputs.proj[kAxisX] + begin : discard.data(),
+          outputs.proj[kAxisY] ? outputs.proj[kAxisY] + begin : discard.data(),
+          outputs.mask + begin, outputs.confidence + begin, boundary.data());
+    });
+    if (options.min_consistent_neighbours > 0) {
+      internal::RemoveSpeckles(options.min_consistent_neighbours,
+                               static_cast<float>(options.neighbour_tolerance_px), map);
+    }
+  }
+};
+
+IncrementalDecoder::IncrementalDecoder(const FrameSetManifest& manifest,
+                                       const DecoderOptions& options)
+    : impl_(std::make_unique<Impl>()) {
+  options.Check();
+  manifest.Check();
+  impl_->manifest = manifest;
+  impl_->options = options;
+  impl_->plan = internal::MakeDecodePlan(manifest, options);
+  impl_->has_white_black = impl_->plan.white >= 0 && impl_->plan.black >= 0;
+  Reset();
+}
+
+IncrementalDecoder::~IncrementalDecoder() = default;
+
+void IncrementalDecoder::Reset() {
+  Impl& d = *impl_;
+  d.images.assign(d.manifest.frames.size(), cv::Mat());
+  d.added = 0;
+  d.depth = -1;
+  d.incremental = false;
+  d.prepared = false;
+  d.next_bit = {0, 0};
+}
+
+size_t IncrementalDecoder::FramesAdded() const { return impl_->added; }
+
+void IncrementalDecoder::AddFrame(size_t index, const cv::Mat& image) {
+  Impl& d = *impl_;
+  SOPE_CHECK(index < d.images.size(), "frame index {} is out of range (the set has {} frames)",
+             index, d.images.size());
+  SOPE_CHECK(d.images[index].empty(), "frame {} was already added", index);
+  SOPE_CHECK(!image.empty() && image.channels() == 1 &&
+                 (image.depth() == CV_8U || image.depth() == CV_16U),
+             "frame {}: expected a single-channel 8- or 16-bit image", index);
+  SOPE_CHECK(image.cols == d.manifest.camera_width && image.rows == d.manifest.camera_height,
+             "frame {} is {}x{} but the set's camera is {}x{}", index, image.cols, image.rows,
+             d.manifest.camera_width, d.manifest.camera_height);
+  SOPE_CHECK(d.depth < 0 || image.depth() == d.depth,
+             "frame {}: every frame of a set must have the same bit depth", index);
+  if (d.depth < 0) {
+    d.depth = image.depth();
+    d.incremental = d.depth == CV_8U && d.plan.mode != BitDecision::kRobust &&
+                    !d.plan.any_threshold_bit;
+    if (d.incremental) {
+      d.thresholds = internal::MakeThresholds(
+          d.plan, d.options, internal::PixelTraits<uint8_t>::kLevelsPerGreyLevel);
+      d.Start();
+    }
+  }
+  d.images[index] = image.isContinuous() ? image : image.clone();
+  ++d.added;
+  if (d.incremental) d.Progress();
+}
+
+void IncrementalDecoder::Finish(CorrespondenceMap* map) {
+  SOPE_CHECK(map != nullptr, "IncrementalDecoder::Finish: no output map");
+  Impl& d = *impl_;
+  for (size_t i = 0; i < d.images.size(); ++i) {
+    SOPE_CHECK(!d.images[i].empty(), "frame {} ('{}') has not been added", i,
+               d.manifest.frames[i].file);
+  }
+  if (!d.incremental) {
+    FrameSet frames;
+    frames.manifest = d.manifest;
+    frames.images = d.images;
+    Decode(frames, d.options, map);
+    return;
+  }
+  d.Progress();
+  d.FinishIncremental(map);
+}
+
+CorrespondenceMap IncrementalDecoder::Finish() {
+  CorrespondenceMap map;
+  Finish(&map);
   return map;
 }
 

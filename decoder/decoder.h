@@ -2,6 +2,7 @@
 // correspondences.
 #pragma once
 
+#include <memory>
 #include <string>
 
 #include <opencv2/core/mat.hpp>
@@ -115,6 +116,45 @@ CorrespondenceMap Decode(const FrameSet& frame_set, const DecoderOptions& option
 // type and are not shared with another cv::Mat, else reallocated. Scanning repeatedly into
 // one map thus avoids allocating (and page-faulting in) ~13 bytes per camera pixel per scan.
 void Decode(const FrameSet& frame_set, const DecoderOptions& options, CorrespondenceMap* map);
+
+// Decoding while the frames are still being captured (the live loop): frames arrive one at
+// a time with AddFrame, each bit is accumulated over the whole image as soon as its
+// frames are in (pattern and inverse, and white/black first when the set has them), and
+// Finish does only what needs every bit (coordinates, boundary pixels, speckle filter).
+// The map is identical to Decode(frames, options) for any arrival order. The per-frame
+// work is done for 8-bit sets decoded against inverses (kAuto with inverses, the
+// default); other sets (kThreshold, kRobust, threshold bits, 16-bit) keep the frames and
+// decode them in Finish.
+//
+//   IncrementalDecoder decoder(manifest, options);
+//   for (size_t i = 0; i < manifest.frames.size(); ++i) decoder.AddFrame(i, Capture(i));
+//   decoder.Finish(&map);
+class IncrementalDecoder {
+ public:
+  // Throws sope::Error on invalid options or a manifest that cannot be decoded (as Decode).
+  IncrementalDecoder(const FrameSetManifest& manifest, const DecoderOptions& options = {});
+  ~IncrementalDecoder();
+  IncrementalDecoder(const IncrementalDecoder&) = delete;
+  IncrementalDecoder& operator=(const IncrementalDecoder&) = delete;
+
+  // Frame `index` of the manifest: camera size, 8- or 16-bit grey like the rest of the set
+  // (kept by reference, not copied: the caller must not write into it until Finish).
+  // Throws sope::Error on a bad index, size or type, or a frame given twice.
+  void AddFrame(size_t index, const cv::Mat& image);
+  // Number of frames added so far.
+  size_t FramesAdded() const;
+  // After every frame has been added (else sope::Error naming the first missing one):
+  // the map, into `map` as Decode(…, map) does. The decoder can then be reused for the
+  // next frame set with Reset.
+  void Finish(CorrespondenceMap* map);
+  CorrespondenceMap Finish();
+  // Forgets the frames (keeps the buffers).
+  void Reset();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
 
 // Writes proj_x.exr / proj_y.exr (float, NaN invalid), mask.png, confidence.exr,
 // correspondence.json (projector size, steps), and the colourised views proj_x.png /

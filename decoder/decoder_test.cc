@@ -5,6 +5,8 @@
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <numeric>
+#include <random>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
@@ -700,6 +702,103 @@ TEST(SyntheticDecode, ThreadsGiveIdenticalResults) {
       }
     }
   }
+}
+
+void ExpectSameMaps(const CorrespondenceMap& a, const CorrespondenceMap& b) {
+  EXPECT_EQ(a.projector_width, b.projector_width);
+  EXPECT_EQ(a.projector_height, b.projector_height);
+  EXPECT_EQ(a.step_x, b.step_x);
+  EXPECT_EQ(a.step_y, b.step_y);
+  for (const auto& [x, y] : {std::pair{&a.proj_x, &b.proj_x}, std::pair{&a.proj_y, &b.proj_y},
+                             std::pair{&a.mask, &b.mask},
+                             std::pair{&a.confidence, &b.confidence}}) {
+    ASSERT_EQ(x->size(), y->size());
+    ASSERT_EQ(x->type(), y->type());
+    if (x->empty()) continue;
+    EXPECT_EQ(std::memcmp(x->data, y->data, x->total() * x->elemSize()), 0);
+  }
+}
+
+// Frames fed one at a time (in order, reversed, shuffled) give the batch decode's map,
+// byte for byte, for the per-frame path (inverses, with and without white/black, with a
+// relative bit threshold, x only) and for the sets it hands to the batch decoder.
+TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
+  struct Variant {
+    std::string name;
+    bool white_black;
+    PatternAxes axes;
+    BitDecision mode;
+    double relative;
+    bool sixteen_bit;
+  };
+  const std::vector<Variant> variants = {
+      {"inverses", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, false},
+      {"relative threshold", true, PatternAxes::kXY, BitDecision::kAuto, 0.2, false},
+      {"no white/black", false, PatternAxes::kXY, BitDecision::kAuto, 0.0, false},
+      {"x only", true, PatternAxes::kX, BitDecision::kAuto, 0.0, false},
+      {"threshold (batch)", true, PatternAxes::kXY, BitDecision::kThreshold, 0.0, false},
+      {"robust (batch)", true, PatternAxes::kXY, BitDecision::kRobust, 0.0, false},
+      {"16-bit (batch)", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, true},
+  };
+  for (const Variant& variant : variants) {
+    SCOPED_TRACE(variant.name);
+    SceneOptions scene;
+    scene.camera_width = 517;  // not a multiple of the chunk size
+    scene.camera_height = 301;
+    scene.patterns.projector_width = 300;
+    scene.patterns.projector_height = 200;
+    scene.patterns.white_black = variant.white_black;
+    scene.patterns.axes = variant.axes;
+    scene.sixteen_bit = variant.sixteen_bit;
+    const SyntheticCapture capture = RenderScene(scene);
+    DecoderOptions options;
+    options.bit_decision = variant.mode;
+    options.min_relative_bit_contrast = variant.relative;
+    const CorrespondenceMap batch = Decode(capture.frame_set, options);
+    ASSERT_GT(batch.CountValid(), 10000u);
+    const size_t count = capture.frame_set.images.size();
+    std::vector<size_t> order(count);
+    std::iota(order.begin(), order.end(), 0);
+    IncrementalDecoder decoder(capture.frame_set.manifest, options);
+    for (int arrangement = 0; arrangement < 3; ++arrangement) {
+      if (arrangement == 1) std::reverse(order.begin(), order.end());
+      if (arrangement == 2) std::shuffle(order.begin(), order.end(), std::mt19937(3));
+      decoder.Reset();
+      for (size_t index : order) {
+        // Not finished before the last frame: a clear error, nothing decoded.
+        if (decoder.FramesAdded() + 1 == count) {
+          EXPECT_THROW_WITH_MESSAGE(decoder.Finish(), Error, "has not been added");
+        }
+        decoder.AddFrame(index, capture.frame_set.images[index]);
+      }
+      EXPECT_EQ(decoder.FramesAdded(), count);
+      CorrespondenceMap incremental;
+      decoder.Finish(&incremental);
+      ExpectSameMaps(batch, incremental);
+    }
+  }
+}
+
+TEST(IncrementalDecode, BadFramesAreClearErrors) {
+  const SyntheticCapture capture = RenderScene(SceneOptions());
+  IncrementalDecoder decoder(capture.frame_set.manifest);
+  const size_t count = capture.frame_set.images.size();
+  EXPECT_THROW_WITH_MESSAGE(decoder.AddFrame(count, capture.frame_set.images[0]), Error,
+                            "out of range");
+  EXPECT_THROW_WITH_MESSAGE(decoder.AddFrame(0, cv::Mat(10, 10, CV_8UC1)), Error, "10x10",
+                            "400x300");
+  EXPECT_THROW_WITH_MESSAGE(decoder.AddFrame(0, cv::Mat(300, 400, CV_32FC1)), Error,
+                            "8- or 16-bit");
+  decoder.AddFrame(0, capture.frame_set.images[0]);
+  EXPECT_THROW_WITH_MESSAGE(decoder.AddFrame(0, capture.frame_set.images[0]), Error,
+                            "already added");
+  cv::Mat sixteen;
+  capture.frame_set.images[1].convertTo(sixteen, CV_16U, 257.0);
+  EXPECT_THROW_WITH_MESSAGE(decoder.AddFrame(1, sixteen), Error, "same bit depth");
+  DecoderOptions bad;
+  bad.min_contrast = -1.0;
+  EXPECT_THROW_WITH_MESSAGE(IncrementalDecoder(capture.frame_set.manifest, bad), Error,
+                            "min_contrast");
 }
 
 TEST(SyntheticDecode, WithoutWhiteAndBlackFramesInversesSuffice) {
