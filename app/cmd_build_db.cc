@@ -9,6 +9,14 @@
 #include "recogniser/database_builder.h"
 
 namespace sope {
+namespace {
+
+// Beyond these the build is not useful, only long: 2000 Fibonacci viewpoints are ≈ 4.5°
+// apart (the sope preset uses 300, the thesis 18), and no machine has more cores to feed.
+constexpr int kMaxViewsPerModel = 2000;
+constexpr int kMaxThreads = 256;
+
+}  // namespace
 
 int RunBuildDb(int argc, char** argv) {
   CLI::App app{"Build a recognition database (.sopedb) from a models directory "
@@ -45,7 +53,8 @@ int RunBuildDb(int argc, char** argv) {
   DatabaseOptions options = DatabaseOptions::Preset(preset);
   if (layout_option->count() > 0) options.layout = ViewpointLayoutFromString(layout);
   if (views_option->count() > 0) {
-    SOPE_CHECK(views >= 1, "--views must be ≥ 1, got {}", views);
+    SOPE_CHECK(views >= 1 && views <= kMaxViewsPerModel, "--views must be in [1, {}], got {}",
+               kMaxViewsPerModel, views);
     options.views_per_model = views;
     if (layout_option->count() == 0) {
       options.layout = views == 18 && options.layout == ViewpointLayout::kThesis18
@@ -60,7 +69,8 @@ int RunBuildDb(int argc, char** argv) {
              "--layout thesis has 18 viewpoints, --views {} given", options.views_per_model);
   if (!hash.empty()) options.hash.method = HashMethodFromString(hash);
   if (bits != 0) options.hash.bits = bits;
-  SOPE_CHECK(threads >= 0, "--threads must be ≥ 0, got {}", threads);
+  SOPE_CHECK(threads >= 0 && threads <= kMaxThreads, "--threads must be in [0, {}], got {}",
+             kMaxThreads, threads);
   options.Check();
 
   const std::vector<ModelSource> models = ListModels(models_dir);

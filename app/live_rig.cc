@@ -6,6 +6,7 @@
 
 #include "capture/replay_camera.h"
 #include "core/error.h"
+#include "core/file_util.h"
 
 namespace sope {
 namespace cli {
@@ -111,6 +112,8 @@ LiveRig OpenLiveRig(const std::string& spec, const RigCalibration& calibration,
 
 InterruptFlag::InterruptFlag() {
   interrupted = false;
+  // Under sope's signal policy (core/file_util.h) signals reach its thread, not handlers.
+  if (BeginCooperativeInterrupts(&interrupted)) return;
   struct sigaction action {};
   action.sa_handler = OnSignal;
   sigemptyset(&action.sa_mask);
@@ -119,6 +122,7 @@ InterruptFlag::InterruptFlag() {
 }
 
 InterruptFlag::~InterruptFlag() {
+  if (EndCooperativeInterrupts()) return;
   sigaction(SIGINT, &previous_int, nullptr);
   sigaction(SIGTERM, &previous_term, nullptr);
 }

@@ -45,6 +45,7 @@ struct TemporaryRegistry {
   std::vector<std::string> paths;
   std::string program = "sope";
   bool installed = false;
+  std::atomic<std::atomic<bool>*> cooperative{nullptr};
 };
 
 TemporaryRegistry& Registry() {
@@ -64,11 +65,36 @@ void RemoveAllPersistently(const std::string& path) {
   }
 }
 
-[[noreturn]] void InterruptWaiter(sigset_t signals) {
-  int signal_number = 0;
-  while (::sigwait(&signals, &signal_number) != 0) {
-  }
+// Self-pipe: the handler (async-signal-safe: one write(2)) wakes the waiting thread, which
+// does the work. A handler rather than sigwait() because libraries start threads before
+// main() that would not have the signals blocked and would take the default action.
+int interrupt_pipe[2] = {-1, -1};
+
+void OnInterruptSignal(int signal_number) {
+  const int saved_errno = errno;
+  const unsigned char byte = static_cast<unsigned char>(signal_number);
+  ssize_t ignored = ::write(interrupt_pipe[1], &byte, 1);
+  (void)ignored;
+  errno = saved_errno;
+}
+
+[[noreturn]] void InterruptWaiter() {
   TemporaryRegistry& registry = Registry();
+  int signal_number = 0;
+  while (true) {
+    unsigned char byte = 0;
+    const ssize_t n = ::read(interrupt_pipe[0], &byte, 1);
+    if (n != 1) {
+      if (n < 0 && errno == EINTR) continue;
+      if (n < 0) std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      continue;
+    }
+    signal_number = byte;
+    // A live loop asked to stop cooperatively: the first signal only raises its flag.
+    std::atomic<bool>* flag = registry.cooperative.load();
+    if (flag != nullptr && !flag->exchange(true)) continue;
+    break;
+  }
   // Held until _exit: no temporary can be registered (created) after the cleanup.
   registry.mutex.lock();
   for (auto it = registry.paths.rbegin(); it != registry.paths.rend(); ++it) {
@@ -171,19 +197,41 @@ void InstallInterruptPolicy(const std::string& program) {
   std::lock_guard<std::mutex> lock(registry.mutex);
   registry.program = program;
   if (registry.installed) return;
-  sigset_t signals;
-  sigemptyset(&signals);
-  sigaddset(&signals, SIGINT);
-  sigaddset(&signals, SIGTERM);
-  const int result = ::pthread_sigmask(SIG_BLOCK, &signals, nullptr);
-  SOPE_CHECK(result == 0, "cannot block SIGINT/SIGTERM: {}", std::strerror(result));
-  std::thread(InterruptWaiter, signals).detach();
+  SOPE_CHECK(::pipe2(interrupt_pipe, O_CLOEXEC) == 0, "cannot create the signal pipe: {}",
+             std::strerror(errno));
+  std::thread(InterruptWaiter).detach();
+  for (int signal_number : {SIGINT, SIGTERM}) {
+    struct sigaction previous {};
+    ::sigaction(signal_number, nullptr, &previous);
+    // A signal the parent chose to ignore (e.g. SIGINT of a background job) stays ignored.
+    if (previous.sa_handler == SIG_IGN) continue;
+    struct sigaction action {};
+    action.sa_handler = &OnInterruptSignal;
+    sigemptyset(&action.sa_mask);
+    action.sa_flags = SA_RESTART;
+    SOPE_CHECK(::sigaction(signal_number, &action, nullptr) == 0, "cannot handle signal {}: {}",
+               signal_number, std::strerror(errno));
+  }
   registry.installed = true;
+}
+
+bool BeginCooperativeInterrupts(std::atomic<bool>* flag) {
+  TemporaryRegistry& registry = Registry();
+  std::lock_guard<std::mutex> lock(registry.mutex);
+  if (!registry.installed) return false;
+  registry.cooperative.store(flag);
+  return true;
+}
+
+bool EndCooperativeInterrupts() {
+  TemporaryRegistry& registry = Registry();
+  std::lock_guard<std::mutex> lock(registry.mutex);
+  return registry.cooperative.exchange(nullptr) != nullptr;
 }
 
 int OpenRegularFileForReading(const std::string& path, const std::string& what) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK);
-  SOPE_CHECK(fd >= 0, "{} {}: {}", what, path,
+  SOPE_CHECK(fd >= 0, "cannot open {} {}: {}", what, path,
              errno == ENOENT ? std::string("no such file") : std::string(std::strerror(errno)));
   struct stat st {};
   if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {

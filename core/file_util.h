@@ -2,6 +2,7 @@
 // program never leaves a half-written output behind.
 #pragma once
 
+#include <atomic>
 #include <functional>
 #include <string>
 
@@ -16,13 +17,19 @@ void RequireReadableFile(const std::string& path, const std::string& what);
 // and returns the descriptor only if it is a regular file; throws sope::Error otherwise.
 int OpenRegularFileForReading(const std::string& path, const std::string& what);
 
-// The signal policy, one for the whole program: SIGINT and SIGTERM are blocked in the
-// calling thread (and so in every thread started after it) and taken by one waiting
-// thread, which removes every staged temporary still registered (the `.name.tmp-XXXXXX`
-// files and directories of WriteFileAtomic, StagedDirectory and the PCD writer), prints
-// "<program>: error: interrupted" as the only line and exits with 128 + signal number.
-// Call it first in main(), before any thread starts; `program` is e.g. "sope decode".
+// The signal policy, one for the whole program: SIGINT and SIGTERM (unless inherited as
+// ignored) go to a handler that only wakes one waiting thread (self-pipe), which removes
+// every staged temporary still registered (the `.name.tmp-XXXXXX` files and directories of
+// WriteFileAtomic, StagedDirectory and the PCD writer), prints "<program>: error:
+// interrupted" as the only line and exits with 128 + signal number. Call it first in
+// main(); `program` is e.g. "sope decode".
 void InstallInterruptPolicy(const std::string& program);
+// Cooperative stops for live loops: between Begin and End the first SIGINT/SIGTERM only sets
+// `*flag` (the loop stops between frames and cleans up); a second one ends the process as
+// above. Begin returns false, doing nothing, when the policy is not installed (library use:
+// the caller then handles signals itself); End returns whether Begin had succeeded.
+bool BeginCooperativeInterrupts(std::atomic<bool>* flag);
+bool EndCooperativeInterrupts();
 
 namespace internal {
 // The registry the policy cleans. RegisterTemporary runs `create` (which makes `path`)
