@@ -106,9 +106,10 @@ int RunSimulate(int argc, char** argv) {
   }
   SOPE_CHECK(!mesh_path.empty(), "one of --mesh or --board is required");
   const Rigid3d pose = cli::ParsePose(pose_text, "--object-pose");
-  SOPE_CHECK(pose.translation.norm() <= kMaxSceneDistance,
-             "--object-pose '{}': the object centre is {:.3g} m away, beyond {} m", pose_text,
-             pose.translation.norm(), kMaxSceneDistance);
+  const double farthest_coordinate = pose.translation.cwiseAbs().maxCoeff();
+  SOPE_CHECK(farthest_coordinate <= kMaxSceneDistance,
+             "--object-pose '{}': a centre coordinate of {:.3g} m is beyond {} m", pose_text,
+             farthest_coordinate, kMaxSceneDistance);
   SOPE_CHECK(size_option->count() == 0 ||
                  (std::isfinite(size) && size > 0.0 && size <= kMaxSceneDistance),
              "--object-size must be in (0, {}] m, got {}", kMaxSceneDistance, size);
