@@ -53,16 +53,20 @@ void PoseOptions::Check() const {
              angle_bins);
   for (size_t i = 0; i < ring_edges.size(); ++i) {
     SOPE_CHECK(ring_edges[i] > 0.0f && (i == 0 || ring_edges[i] > ring_edges[i - 1]),
-               "pose: ring_edges must be positive and increasing");
+               "pose: ring_edges must be positive and increasing, got ring_edges[{}] = {}", i,
+               ring_edges[i]);
   }
   SOPE_CHECK(roll_hypotheses >= 1 && roll_hypotheses <= angle_bins / 2,
              "pose: roll_hypotheses must be in [1, angle_bins/2], got {}", roll_hypotheses);
   SOPE_CHECK(max_iterations >= 0, "pose: max_iterations must be ≥ 0, got {}", max_iterations);
   SOPE_CHECK(final_gate > 0.0 && initial_gate_fraction >= 0.0,
-             "pose: final_gate must be > 0 m and initial_gate_fraction ≥ 0");
-  SOPE_CHECK(gate_iterations >= 1, "pose: gate_iterations must be ≥ 1");
+             "pose: final_gate must be > 0 m and initial_gate_fraction ≥ 0, got {} and {}",
+             final_gate, initial_gate_fraction);
+  SOPE_CHECK(gate_iterations >= 1, "pose: gate_iterations must be ≥ 1, got {}", gate_iterations);
   SOPE_CHECK(final_window >= 0 && initial_window >= final_window,
-             "pose: need 0 ≤ final_window ≤ initial_window");
+             "pose: need 0 ≤ final_window ≤ initial_window, got final_window {} and "
+             "initial_window {}",
+             final_window, initial_window);
   SOPE_CHECK(coverage_grazing_cos >= 0.0 && coverage_grazing_cos <= 1.0,
              "pose: coverage_grazing_cos must be in [0, 1], got {}", coverage_grazing_cos);
   SOPE_CHECK(normal_min_cos >= -1.0 && normal_min_cos <= 1.0,
