@@ -200,11 +200,9 @@ void InstallInterruptPolicy(const std::string& program) {
   SOPE_CHECK(::pipe2(interrupt_pipe, O_CLOEXEC) == 0, "cannot create the signal pipe: {}",
              std::strerror(errno));
   std::thread(InterruptWaiter).detach();
+  // Also when inherited as ignored (SIGINT of a shell's background job): an interrupt
+  // must still clean up, as the live loops' handlers always did.
   for (int signal_number : {SIGINT, SIGTERM}) {
-    struct sigaction previous {};
-    ::sigaction(signal_number, nullptr, &previous);
-    // A signal the parent chose to ignore (e.g. SIGINT of a background job) stays ignored.
-    if (previous.sa_handler == SIG_IGN) continue;
     struct sigaction action {};
     action.sa_handler = &OnInterruptSignal;
     sigemptyset(&action.sa_mask);
@@ -278,16 +276,23 @@ std::string ReadFileToString(const std::string& path, const std::string& what) {
 void WriteFileAtomic(const std::string& path, const std::string& contents) {
   const fs::path target(path);
   const fs::path parent = target.has_parent_path() ? target.parent_path() : fs::path(".");
-  std::error_code error;
-  fs::create_directories(parent, error);
-  SOPE_CHECK(!error, "cannot create directory {}: {}", parent.string(), error.message());
   const std::string temporary =
       (parent / ("." + target.filename().string() + ".tmp-" + RandomSuffix())).string();
+  // Everything this creates (missing parents too) is created under the registry lock, so
+  // nothing reappears inside a staged directory after the interrupt policy removed it.
+  std::error_code error;
   int fd = -1;
+  int open_errno = 0;
   internal::RegisterTemporary(temporary, [&] {
+    fs::create_directories(parent, error);
+    if (error) return;
     fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+    open_errno = errno;
   });
-  const int open_errno = errno;
+  if (error) {
+    internal::FinishTemporary(temporary, [] {});
+    SOPE_THROW("cannot create directory {}: {}", parent.string(), error.message());
+  }
   if (fd < 0) {
     internal::FinishTemporary(temporary, [] {});
     SOPE_THROW("cannot write {}: {}", path, std::strerror(open_errno));

@@ -17,7 +17,7 @@ void RequireReadableFile(const std::string& path, const std::string& what);
 // and returns the descriptor only if it is a regular file; throws sope::Error otherwise.
 int OpenRegularFileForReading(const std::string& path, const std::string& what);
 
-// The signal policy, one for the whole program: SIGINT and SIGTERM (unless inherited as
+// The signal policy, one for the whole program: SIGINT and SIGTERM (even when inherited as
 // ignored) go to a handler that only wakes one waiting thread (self-pipe), which removes
 // every staged temporary still registered (the `.name.tmp-XXXXXX` files and directories of
 // WriteFileAtomic, StagedDirectory and the PCD writer), prints "<program>: error:

@@ -206,7 +206,8 @@ std::vector<PlyElement> ReadPly(const std::string& path, const std::vector<std::
     const size_t per_row = std::max<size_t>(row_bytes, 1);
     const size_t slack = encoding == Encoding::kAscii ? 1 : 0;
     SOPE_CHECK(element.count <= (body_bytes + slack - std::min(needed, body_bytes + slack)) / per_row,
-               "PLY {}: element '{}' claims {} rows, more than the {} bytes of data can hold",
+               "PLY {}: truncated or corrupt: element '{}' claims {} rows, more than the {} "
+               "bytes of data can hold",
                path, element.name, element.count, body_bytes);
     needed += element.count * per_row;
   }
