@@ -6,7 +6,7 @@
 #include "app/commands.h"
 #include "core/error.h"
 #include "recogniser/database.h"
-#include "recogniser/database_builder.h"
+#include "recogniser/tools/database_builder.h"
 
 namespace sope {
 namespace {
@@ -50,28 +50,19 @@ int RunBuildDb(int argc, char** argv) {
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
 
-  DatabaseOptions options = DatabaseOptions::Preset(preset);
-  if (layout_option->count() > 0) options.layout = ViewpointLayoutFromString(layout);
+  DatabasePresetChoices choices;
+  choices.preset = preset;
   if (views_option->count() > 0) {
     SOPE_CHECK(views >= 1 && views <= kMaxViewsPerModel, "--views must be in [1, {}], got {}",
                kMaxViewsPerModel, views);
-    options.views_per_model = views;
-    if (layout_option->count() == 0) {
-      options.layout = views == 18 && options.layout == ViewpointLayout::kThesis18
-                           ? ViewpointLayout::kThesis18
-                           : ViewpointLayout::kFibonacci;
-    }
+    choices.views = views;
   }
-  if (options.layout == ViewpointLayout::kThesis18 && views_option->count() == 0) {
-    options.views_per_model = 18;
-  }
-  SOPE_CHECK(options.layout != ViewpointLayout::kThesis18 || options.views_per_model == 18,
-             "--layout thesis has 18 viewpoints, --views {} given", options.views_per_model);
-  if (!hash.empty()) options.hash.method = HashMethodFromString(hash);
-  if (bits != 0) options.hash.bits = bits;
+  if (layout_option->count() > 0) choices.layout = ViewpointLayoutFromString(layout);
+  if (!hash.empty()) choices.hash = HashMethodFromString(hash);
+  if (bits != 0) choices.bits = bits;
   SOPE_CHECK(threads >= 0 && threads <= kMaxThreads, "--threads must be in [0, {}], got {}",
              kMaxThreads, threads);
-  options.Check();
+  const DatabaseOptions options = ResolveDatabaseOptions(choices);
 
   const std::vector<ModelSource> models = ListModels(models_dir);
   spdlog::info("{} meshes in {}; {} {} viewpoints each, {} {}-bit codes", models.size(),

@@ -6,8 +6,9 @@
 #include "app/cli_util.h"
 #include "app/commands.h"
 #include "core/error.h"
+#include "recogniser/bop.h"
 #include "recogniser/database.h"
-#include "recogniser/evaluation.h"
+#include "recogniser/tools/evaluation.h"
 
 namespace sope {
 
@@ -31,6 +32,10 @@ int RunEval(int argc, char** argv) {
   app.add_option("--protocol", protocol_text,
                  "instance or class (default: class with --models, else instance)");
   app.add_option("--out", out, "Report directory")->required();
+  std::string bop_csv;
+  app.add_option("--bop-csv", bop_csv,
+                 "Also write the estimates as a BOP challenge results CSV (scene_id 1, im_id = "
+                 "query number, obj_id = database model index + 1, t in mm, time in s)");
   app.add_option("--method", method,
                  "Recognition options: sope (ours) or thesis (radius search, VFH + radial "
                  "ranking, no pose refinement)")
@@ -125,6 +130,18 @@ int RunEval(int argc, char** argv) {
   }
   report.skipped_models = skipped;
   WriteEvalReport(report, out);
+  if (!bop_csv.empty()) {
+    std::vector<BopEstimate> estimates;
+    for (size_t q = 0; q < report.outcomes.size(); ++q) {
+      const QueryOutcome& outcome = report.outcomes[q];
+      if (outcome.predicted_model_index < 0) continue;
+      estimates.push_back({1, static_cast<int>(q), outcome.predicted_model_index + 1,
+                           outcome.score, outcome.estimated_cam_from_model,
+                           outcome.timing.total / 1000.0});
+    }
+    WriteBopCsv(bop_csv, estimates);
+    spdlog::info("BOP results: {} estimates -> {}", estimates.size(), bop_csv);
+  }
   std::printf("%s\n", report.BriefReport().c_str());
   spdlog::info("report: {}/report.md, report.json, confusion.png, pose_errors.png", out);
   return 0;

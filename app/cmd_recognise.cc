@@ -8,6 +8,7 @@
 #include "core/error.h"
 #include "core/point_cloud.h"
 #include "recogniser/database.h"
+#include "recogniser/faiss_coarse_index.h"
 #include "recogniser/recogniser.h"
 
 namespace sope {
@@ -20,6 +21,7 @@ int RunRecognise(int argc, char** argv) {
   std::string db_path, cloud_path, grouping = "model";
   int top = 4;
   bool json = false, no_pose = false;
+  std::string coarse_index_path;
   cli::LoggingFlags logging;
   app.add_option("--db", db_path, "Database file (.sopedb, from sope build-db)")->required();
   app.add_option("--cloud", cloud_path, "Query cloud (.ply or .pcd)")->required();
@@ -29,6 +31,9 @@ int RunRecognise(int argc, char** argv) {
       ->capture_default_str();
   app.add_flag("--no-pose", no_pose, "Skip pose estimation and verification (ranking only)");
   app.add_flag("--json", json, "Print the result as one JSON object");
+  app.add_option("--coarse-index", coarse_index_path,
+                 "Coarse stage from a FAISS binary index of the database's codes (sope export-db "
+                 "--faiss-binary) instead of the built-in Hamming scan");
   logging.Add(app);
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
@@ -41,6 +46,13 @@ int RunRecognise(int argc, char** argv) {
 
   const std::unique_ptr<Database> db = Database::Open(db_path);
   const PointCloud cloud = ReadPointCloud(cloud_path);
+  std::unique_ptr<FaissCoarseIndex> coarse_index;
+  if (!coarse_index_path.empty()) {
+    coarse_index = FaissCoarseIndex::Read(coarse_index_path, db->codes().bits, db->num_views());
+    options.coarse_kbest = [&](const uint64_t* code, int k) {
+      return coarse_index->KBestSearch(code, k);
+    };
+  }
   const RecognitionResult result = Recogniser(*db).Recognise(cloud, options);
   SOPE_CHECK(!result.empty(), "no suggestion (the database has no comparable view)");
   if (json) {

@@ -11,10 +11,13 @@ int RunDecode(int argc, char** argv);
 int RunScan(int argc, char** argv);
 int RunProject(int argc, char** argv);
 int RunCalibrate(int argc, char** argv);
+int RunCalibrateGamma(int argc, char** argv);
 int RunBuildDb(int argc, char** argv);
 int RunRecognise(int argc, char** argv);
 int RunScanAndRecognise(int argc, char** argv);
 int RunEval(int argc, char** argv);
 int RunObjects(int argc, char** argv);
+int RunImport(int argc, char** argv);
+int RunExportDb(int argc, char** argv);
 
 }  // namespace sope

@@ -22,18 +22,23 @@ struct Command {
 };
 
 constexpr Command kCommands[] = {
-    {"patterns", sope::RunPatterns, "write Gray/binary stripe patterns as PNG + frames.json"},
+    {"patterns", sope::RunPatterns,
+     "write Gray/binary stripe or phase-shift patterns as PNG + frames.json"},
     {"simulate", sope::RunSimulate, "render a frame set on the virtual rig, with ground truth"},
     {"decode", sope::RunDecode, "decode a frame set into projector correspondence maps"},
     {"scan", sope::RunScan, "decode and triangulate a frame set into a point cloud"},
     {"project", sope::RunProject, "show the pattern sequence on the projector, stepping with keys"},
     {"calibrate", sope::RunCalibrate, "calibrate camera and projector from checkerboard frame sets"},
+    {"calibrate-gamma", sope::RunCalibrateGamma,
+     "measure the projector response (gamma) from a grey ramp into the calibration"},
     {"build-db", sope::RunBuildDb, "build a recognition database from a models directory"},
     {"recognise", sope::RunRecognise, "recognise an object in a point cloud and estimate its pose"},
     {"scan-and-recognise", sope::RunScanAndRecognise,
      "scan, recognise the object and estimate its pose (live, replayed or virtual)"},
     {"objects", sope::RunObjects, "write procedural household objects as a models directory"},
     {"eval", sope::RunEval, "evaluate the recogniser on synthetic queries with ground truth"},
+    {"import", sope::RunImport, "write a frame set for another tool's capture (OpenCV, SLStudio)"},
+    {"export-db", sope::RunExportDb, "write a database's coarse codes as a FAISS binary index"},
 };
 
 void PrintUsage(std::FILE* stream) {

@@ -1,6 +1,6 @@
 // Latency of scan and recognise (issue 5): from the last captured frame to the recognition
 // result — decode + triangulate + range-band segmentation + recognition
-// (recogniser/scan_recognition.h RecogniseFrameSet) — median and 95th percentile over scans
+// (recogniser/tools/scan_recognition.h RecogniseFrameSet) — median and 95th percentile over scans
 // of different objects, side by side with the thesis's ~230 ms per recognition
 // (SOPE-THESIS-NOTES.md; recognition alone, on its hardware: compare the ratio counters,
 // not absolute times — this machine is shared).
@@ -29,11 +29,12 @@
 
 #include <benchmark/benchmark.h>
 
+#include "bench/bench_support.h"
 #include "capture/rig_session.h"
 #include "recogniser/database.h"
-#include "recogniser/database_builder.h"
 #include "recogniser/recogniser.h"
-#include "recogniser/scan_recognition.h"
+#include "recogniser/tools/database_builder.h"
+#include "recogniser/tools/scan_recognition.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/virtual_camera.h"
 
@@ -169,4 +170,4 @@ BENCHMARK(BM_FrameToResult_Thesis)->Iterations(5 * kScans)->UseManualTime()->Uni
 }  // namespace
 }  // namespace sope
 
-BENCHMARK_MAIN();
+SOPE_BENCHMARK_MAIN();

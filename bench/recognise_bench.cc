@@ -94,12 +94,13 @@
 #include <pcl/point_types.h>
 #include <pcl/search/kdtree.h>
 
+#include "bench/bench_support.h"
 #include "core/camera_model.h"
 #include "core/mesh.h"
 #include "recogniser/database.h"
-#include "recogniser/database_builder.h"
 #include "recogniser/recogniser.h"
-#include "recogniser/synthetic_queries.h"
+#include "recogniser/tools/database_builder.h"
+#include "recogniser/tools/synthetic_queries.h"
 #include "recogniser/view_description.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/virtual_rig.h"
@@ -617,11 +618,11 @@ int main(int argc, char** argv) {
   setenv("OMP_NUM_THREADS", "1", 1);
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  sope::bench::DisplayReporter reporter(isatty(fileno(stdout))
+                                            ? benchmark::ConsoleReporter::OO_Defaults
+                                            : benchmark::ConsoleReporter::OO_Tabular);
   sope::GetData();  // build or load the databases and render the queries before timing
   sope::RegisterAll();
-  benchmark::ConsoleReporter reporter(isatty(fileno(stdout))
-                                          ? benchmark::ConsoleReporter::OO_Defaults
-                                          : benchmark::ConsoleReporter::OO_Tabular);
   benchmark::RunSpecifiedBenchmarks(&reporter);
   sope::PrintSummary();
   benchmark::Shutdown();

@@ -2,7 +2,7 @@
 // view described coarse to fine (recogniser/features.h), the coarse vectors compressed to
 // binary codes (recogniser/hashing.h), and a small copy of each view's cloud kept for roll
 // estimation, ICP and verification (recogniser/pose.h). BuildDatabase()
-// (recogniser/database_builder.h) makes one from meshes; this header holds what a database
+// (recogniser/tools/database_builder.h) makes one from meshes; this header holds what a database
 // is, its file, and the read-only view of an opened file.
 //
 // File `.sopedb` (DESIGN.md "Database"), little-endian, format version kDatabaseFormatVersion:

@@ -8,9 +8,9 @@
 
 #include "core/camera_model.h"
 #include "core/error.h"
-#include "recogniser/database_builder.h"
-#include "recogniser/viewpoints.h"
+#include "recogniser/tools/database_builder.h"
 #include "recogniser/view_description.h"
+#include "recogniser/viewpoints.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/virtual_rig.h"
 #include "tests/test_support.h"

@@ -275,7 +275,8 @@ RecognitionResult Recogniser::Recognise(const PointCloud& cloud,
         db.num_views(),
         std::max<int>(options.min_flagged,
                       static_cast<int>(std::ceil(options.flag_fraction * db.num_views()))));
-    matches = db.index().KBestSearch(code.code(0), k);
+    matches = options.coarse_kbest ? options.coarse_kbest(code.code(0), k)
+                                   : db.index().KBestSearch(code.code(0), k);
   } else {
     const int radius = static_cast<int>(std::lround(options.radius_fraction * code.bits));
     matches = db.index().RadiusSearch(code.code(0), radius);

@@ -26,6 +26,7 @@
 // model, viewpoint, scores and the 6-DoF pose cam_from_model.
 #pragma once
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -61,6 +62,10 @@ struct RecognitionOptions {
   double flag_fraction = 0.03;  // kKBest: fraction of the database flagged …
   int min_flagged = 48;         // … but at least this many views (small databases)
   double radius_fraction = 0.25;  // kRadius: Hamming radius as a fraction of the code length
+  // kKBest: an external coarse index to search instead of the database's Hamming index
+  // (e.g. FaissCoarseIndex::KBestSearch over the same codes); (query code words, k) →
+  // matches sorted by distance, ties by view index. Empty: the database's own index.
+  std::function<std::vector<HammingMatch>(const uint64_t* code, int k)> coarse_kbest;
 
   // Fine stage: ranking distance = Σ weight · distance / DistanceScales. The coarse vector
   // already holds the metric size block (FeatureOptions::metric_size), so the separate

@@ -9,7 +9,8 @@ packages=(
   libglfw3-dev libx11-dev libosmesa6-dev libv4l-dev
   libcli11-dev nlohmann-json3-dev libfmt-dev libspdlog-dev
   libfaiss-dev libtbb-dev libblas-dev liblapack-dev liblz4-dev
-  libgtest-dev libbenchmark-dev
+  libgtest-dev libbenchmark-dev lld
+  pybind11-dev python3-dev python3-numpy python3-pytest python3-open3d python3-faiss
   xvfb xauth
 )
 

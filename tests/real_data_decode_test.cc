@@ -4,6 +4,8 @@
 // (a bit is undecided when |pattern − inverse| < it), and OpenCV's shadow mask
 // white − black > blackThreshold is our white − black ≥ min_contrast with
 // blackThreshold = min_contrast − 1. Where both decode, the projector pixels must agree.
+// The frame sets are made by `sope import --layout opencv-graycode` (ImportCapture) from the
+// image folders, in name order; the file lists below are what that order must give.
 #include <cmath>
 #include <cstdlib>
 #include <iostream>
@@ -15,6 +17,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/structured_light.hpp>
 
+#include "capture/import_layouts.h"
 #include "core/file_util.h"
 #include "decoder/decoder.h"
 #include "projector/patterns.h"
@@ -30,6 +33,7 @@ constexpr double kMinAgreement = 0.99;
 struct RealCapture {
   std::string name;
   std::string directory;           // relative to the shared data directory
+  std::string select;              // the camera's images in a folder of two cameras
   std::vector<std::string> files;  // OpenCV GrayCodePattern order
   int projector_width = 0;
   int projector_height = 0;
@@ -43,6 +47,7 @@ RealCapture Statue(const std::string& side, int camera) {
   RealCapture capture;
   capture.name = fmt::format("statue_{}_cam{}", side, camera);
   capture.directory = fmt::format("sl/gsoc2015-statue/statue_{}_side", side);
+  capture.select = fmt::format("pattern_cam{}_*", camera);
   for (int i = 1; i <= 44; ++i) {  // 1-based; im43 white, im44 black
     capture.files.push_back(fmt::format("pattern_cam{}_im{}.jpg", camera, i));
   }
@@ -61,15 +66,19 @@ RealCapture Kibekibe() {
   return capture;
 }
 
-FrameSet LoadCapture(const std::string& data, const RealCapture& capture) {
-  FrameSet set;
-  set.directory = JoinPath(data, capture.directory);
-  for (const std::string& file : capture.files) {
-    set.images.push_back(ReadImage(JoinPath(set.directory, file), cv::IMREAD_GRAYSCALE));
-  }
-  set.manifest = MakeOpenCvGrayCodeManifest(capture.projector_width, capture.projector_height,
-                                            set.images[0].cols, set.images[0].rows, capture.files);
-  set.Check();
+FrameSet LoadCapture(const std::string& data, const RealCapture& capture,
+                     const testing::ScratchDir& scratch) {
+  ImportOptions options;
+  options.layout = ImportLayout::kOpenCvGrayCode;
+  options.projector_width = capture.projector_width;
+  options.projector_height = capture.projector_height;
+  options.select = capture.select;
+  const std::string directory = scratch.File(capture.name + "_frames");
+  ImportCapture(JoinPath(data, capture.directory), options, directory);
+  FrameSet set = LoadFrameSet(directory);
+  std::vector<std::string> files;
+  for (const FrameInfo& frame : set.manifest.frames) files.push_back(frame.file);
+  EXPECT_EQ(files, capture.files) << "name order differs from OpenCV's capture order";
   return set;
 }
 
@@ -152,7 +161,8 @@ class RealDataDecode : public ::testing::TestWithParam<RealCapture> {};
 TEST_P(RealDataDecode, AgreesWithOpenCvGrayCodePattern) {
   SOPE_REQUIRE_SHARED_DATA(data);
   const RealCapture& capture = GetParam();
-  const FrameSet set = LoadCapture(data, capture);
+  testing::ScratchDir import_scratch;
+  const FrameSet set = LoadCapture(data, capture, import_scratch);
   DecoderOptions options;
   options.min_contrast = kMinContrast;
   options.min_bit_contrast = kMinBitContrast;

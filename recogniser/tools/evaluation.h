@@ -1,5 +1,5 @@
 // Evaluation protocol of the recogniser (`sope eval`): synthetic queries with ground truth,
-// rendered off the database's viewpoint grid (recogniser/synthetic_queries.h: random
+// rendered off the database's viewpoint grid (recogniser/tools/synthetic_queries.h: random
 // viewpoint, roll, distance and off-axis angle, depth noise, partial occlusion), recognised,
 // and scored against the truth.
 //
@@ -25,7 +25,7 @@
 #include "recogniser/database.h"
 #include "recogniser/pose_metrics.h"
 #include "recogniser/recogniser.h"
-#include "recogniser/synthetic_queries.h"
+#include "recogniser/tools/synthetic_queries.h"
 
 namespace sope {
 
@@ -41,11 +41,9 @@ struct EvalModel {
   std::string path;
   int db_model = -1;  // index in the database (instance protocol), else −1
   TriangleMesh mesh;
-  Eigen::Vector3d center = Eigen::Vector3d::Zero();  // bounding-box centre
-  double bounding_radius = 0.0;
-  double diameter = 0.0;  // bounding-box diagonal, metres
-  std::vector<Eigen::Vector3f> samples;  // surface sample for ADD-S
-  ModelSymmetry symmetry;
+  double bounding_radius = 0.0;  // about truth.center
+  // Bounding-box centre, diameter, ADD-S samples, symmetry (recogniser/pose_metrics.h).
+  PoseTruthModel truth;
 };
 
 // The database's models, read from their source meshes (which must still exist).
@@ -73,7 +71,7 @@ struct EvalOptions {
   // pose before a backdrop on the virtual rig (DefaultRigCalibration: projector light,
   // shadows, lens distortion, defocus, noise, 8-bit), the Gray-code sequence rendered,
   // decoded, triangulated and cut to the object by a range band in front of the backdrop
-  // (recogniser/scan_recognition.h). No occluder (query.max_occlusion is ignored); the
+  // (recogniser/tools/scan_recognition.h). No occluder (query.max_occlusion is ignored); the
   // query camera is the rig's camera. ~1 s of rendering per query.
   bool through_scan = false;
   void Check() const;
@@ -108,6 +106,11 @@ struct QueryOutcome {
   bool adds_ok = false;
   double flagged_fraction = 0.0;
   RecognitionTimings timing;
+  // The best suggestion's database model (−1: none) and pose, and the query's true pose
+  // (cam_from_model, metres): for BOP results files (recogniser/bop.h).
+  int predicted_model_index = -1;
+  Rigid3d estimated_cam_from_model;
+  Rigid3d truth_cam_from_model;
 };
 
 struct EvalReport {

@@ -1,4 +1,4 @@
-#include "recogniser/synthetic_queries.h"
+#include "recogniser/tools/synthetic_queries.h"
 
 #include <algorithm>
 #include <cmath>

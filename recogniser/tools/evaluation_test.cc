@@ -1,7 +1,7 @@
 // The evaluation protocol on a small database of procedural objects: the instance protocol
 // (queries of the database's models) and the class protocol (held-out instances), the
 // scores checked against the ground truth they are computed from, and the report files.
-#include "recogniser/evaluation.h"
+#include "recogniser/tools/evaluation.h"
 
 #include <cmath>
 #include <filesystem>
@@ -12,7 +12,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "core/error.h"
-#include "recogniser/database_builder.h"
+#include "recogniser/tools/database_builder.h"
 #include "simulator/procedural_objects.h"
 #include "tests/test_support.h"
 
