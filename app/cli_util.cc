@@ -9,6 +9,7 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include "core/camera_model.h"
 #include "core/error.h"
 
 namespace sope {
@@ -26,15 +27,29 @@ void ParseSize(const std::string& text, const std::string& option, int* width, i
   } catch (const std::exception&) {
     SOPE_THROW("{} '{}': expected WIDTHxHEIGHT, e.g. 1024x768", option, text);
   }
-  SOPE_CHECK(*width > 0 && *height > 0 && *width <= 32768 && *height <= 32768,
-             "{} '{}': sizes must be in 1..32768", option, text);
+  SOPE_CHECK(*width > 0 && *height > 0 && *width <= kMaxImageSide && *height <= kMaxImageSide,
+             "{} '{}': sizes must be in 1..{}", option, text, kMaxImageSide);
+  SOPE_CHECK(static_cast<int64_t>(*width) * *height <= kMaxImagePixels,
+             "{} '{}': {} pixels is more than the limit of {} ({} Mpx)", option, text,
+             static_cast<int64_t>(*width) * *height, kMaxImagePixels, kMaxImagePixels >> 20);
 }
 
 std::vector<double> ParseNumbers(const std::string& text, const std::string& option) {
   std::vector<double> numbers;
-  std::stringstream stream(text);
-  std::string item;
-  while (std::getline(stream, item, ',')) {
+  SOPE_CHECK(!text.empty(), "{}: expected comma-separated numbers, got an empty value", option);
+  // getline() drops one trailing empty item ("1,2," reads as "1", "2"): split by hand so an
+  // empty item anywhere is an error.
+  std::vector<std::string> items;
+  size_t start = 0;
+  while (true) {
+    const size_t comma = text.find(',', start);
+    items.push_back(text.substr(start, comma == std::string::npos ? std::string::npos
+                                                                  : comma - start));
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  for (const std::string& item : items) {
+    SOPE_CHECK(!item.empty(), "{} '{}': empty item (stray comma?)", option, text);
     try {
       size_t used = 0;
       numbers.push_back(std::stod(item, &used));
@@ -60,8 +75,19 @@ int Parse(CLI::App& app, int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    const int code = app.exit(e);
-    return code == 0 ? 0 : 2;
+    if (e.get_exit_code() == static_cast<int>(CLI::ExitCodes::Success)) {
+      app.exit(e);  // --help, --help-all: the help text on stdout
+      return 0;
+    }
+    // A usage error: one line like every other error (CLI11's own failure message is two).
+    std::string message = e.what();
+    for (char& c : message) {
+      if (c == '\n' || c == '\r') c = ' ';
+    }
+    while (!message.empty() && message.back() == ' ') message.pop_back();
+    std::fputs(fmt::format("{}: error: {} (see --help)\n", app.get_name(), message).c_str(),
+               stderr);
+    return 2;
   }
   return -1;
 }

@@ -19,8 +19,9 @@ Rigid3d ParsePose(const std::string& text, const std::string& option);
 // Comma-separated numbers.
 std::vector<double> ParseNumbers(const std::string& text, const std::string& option);
 
-// Parses argv with CLI11. Returns -1 to continue, or the exit code to return now
-// (0 after --help, 2 after a usage error, which CLI11 has printed).
+// Parses argv with CLI11. Returns -1 to continue, or the exit code to return now: 0 after
+// --help, 2 after a usage error (unknown flag, missing value, malformed number), printed as
+// one line "<app name>: error: <what>" like every other error.
 int Parse(CLI::App& app, int argc, char** argv);
 
 // Adds --verbose/--quiet to `app`; ApplyLogging() sets spdlog's level from them.

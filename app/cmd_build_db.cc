@@ -9,6 +9,14 @@
 #include "recogniser/tools/database_builder.h"
 
 namespace sope {
+namespace {
+
+// Beyond these the build is not useful, only long: 2000 Fibonacci viewpoints are ≈ 4.5°
+// apart (the sope preset uses 300, the thesis 18), and no machine has more cores to feed.
+constexpr int kMaxViewsPerModel = 2000;
+constexpr int kMaxThreads = 256;
+
+}  // namespace
 
 int RunBuildDb(int argc, char** argv) {
   CLI::App app{"Build a recognition database (.sopedb) from a models directory "
@@ -45,13 +53,15 @@ int RunBuildDb(int argc, char** argv) {
   DatabasePresetChoices choices;
   choices.preset = preset;
   if (views_option->count() > 0) {
-    SOPE_CHECK(views >= 1, "--views must be ≥ 1, got {}", views);
+    SOPE_CHECK(views >= 1 && views <= kMaxViewsPerModel, "--views must be in [1, {}], got {}",
+               kMaxViewsPerModel, views);
     choices.views = views;
   }
   if (layout_option->count() > 0) choices.layout = ViewpointLayoutFromString(layout);
   if (!hash.empty()) choices.hash = HashMethodFromString(hash);
   if (bits != 0) choices.bits = bits;
-  SOPE_CHECK(threads >= 0, "--threads must be ≥ 0, got {}", threads);
+  SOPE_CHECK(threads >= 0 && threads <= kMaxThreads, "--threads must be in [0, {}], got {}",
+             kMaxThreads, threads);
   const DatabaseOptions options = ResolveDatabaseOptions(choices);
 
   const std::vector<ModelSource> models = ListModels(models_dir);

@@ -181,13 +181,22 @@ int RunObjects(int argc, char** argv) {
                  "depth-rendered normal-shaded from 35°, 75° and 5° elevation, and their "
                  "profiles) and DIR/overview.png (every class at one scale)");
   app.add_option("--instances", instances, "Instances per class")->capture_default_str();
-  app.add_option("--seed", seed, "Seed of the first instance")->capture_default_str();
+  // CLI11 would wrap "-1" into 2^64 − 1 for the unsigned seed: refuse a sign.
+  app.add_option("--seed", seed, "Seed of the first instance")
+      ->check(CLI::Validator(
+          [](std::string& text) {
+            return text.find('-') != std::string::npos ? "must be ≥ 0, got " + text
+                                                       : std::string();
+          },
+          "UINT", "non-negative"))
+      ->capture_default_str();
   logging.Add(app);
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
   SOPE_CHECK(!out.empty() || !contact_sheet.empty(),
              "give --out DIR (models) and/or --contact-sheet DIR (pictures)");
-  SOPE_CHECK(instances >= 1, "--instances must be ≥ 1, got {}", instances);
+  SOPE_CHECK(instances >= 1 && instances <= kMaxInstancesPerClass,
+             "--instances must be in [1, {}], got {}", kMaxInstancesPerClass, instances);
   if (!out.empty()) {
     const std::vector<std::string> written = WriteProceduralModels(out, instances, seed);
     spdlog::info("wrote {} meshes ({} per class, seeds {}–{}) to {}", written.size(), instances,

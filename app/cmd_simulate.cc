@@ -1,5 +1,7 @@
 // sope simulate --mesh FILE [--object-pose rx,ry,rz,tx,ty,tz] [--rig RIG.yaml] --out DIR
 // sope simulate --board COLSxROWSxSQUARE_M --views N [--rig RIG.yaml] --out DIR
+#include <cmath>
+
 #include <opencv2/core.hpp>
 #include <spdlog/spdlog.h>
 
@@ -21,6 +23,8 @@ namespace {
 constexpr double kMinPlausibleSize = 0.02;
 constexpr double kMaxPlausibleSize = 1.5;
 constexpr double kDefaultObjectSize = 0.25;
+// Beyond this (metres) nothing of the scene can reach a bench-top rig's image.
+constexpr double kMaxSceneDistance = 100.0;
 
 }  // namespace
 
@@ -54,10 +58,15 @@ int RunSimulate(int argc, char** argv) {
                  "Object rotation (degrees, R = Rz*Ry*Rx) and bounding-box centre (metres) "
                  "in the camera frame: rx,ry,rz,tx,ty,tz")
       ->capture_default_str();
-  app.add_option("--object-size", size,
-                 "Scale the mesh to this bounding-box diagonal, metres (default: keep metres "
-                 "when plausible, else 0.25)");
-  app.add_option("--backdrop", backdrop, "Add a matte backdrop plane at this depth, metres");
+  CLI::Option* size_option = app.add_option(
+      "--object-size", size,
+      "Scale the mesh to this bounding-box diagonal, metres (default: keep metres when "
+      "plausible, else 0.25)");
+  CLI::Option* backdrop_option =
+      app.add_option("--backdrop", backdrop, "Add a matte backdrop plane at this depth, metres");
+  bool allow_empty = false;
+  app.add_flag("--allow-empty", allow_empty,
+               "Write the frame set even when no pixel sees the object lit (else an error)");
   app.add_option("--rig", rig_path, "Rig calibration YAML (default: the built-in desktop rig)");
   app.add_option("--out", out, "Output frame-set directory")->required();
   app.add_option("--ambient", sensor.ambient, "Ambient light relative to the projector")
@@ -106,7 +115,20 @@ int RunSimulate(int argc, char** argv) {
   }
   SOPE_CHECK(!mesh_path.empty(), "one of --mesh or --board is required");
   const Rigid3d pose = cli::ParsePose(pose_text, "--object-pose");
+  const double farthest_coordinate = pose.translation.cwiseAbs().maxCoeff();
+  SOPE_CHECK(farthest_coordinate <= kMaxSceneDistance,
+             "--object-pose '{}': a centre coordinate of {:.3g} m is beyond {} m", pose_text,
+             farthest_coordinate, kMaxSceneDistance);
+  SOPE_CHECK(size_option->count() == 0 ||
+                 (std::isfinite(size) && size > 0.0 && size <= kMaxSceneDistance),
+             "--object-size must be in (0, {}] m, got {}", kMaxSceneDistance, size);
+  SOPE_CHECK(backdrop_option->count() == 0 ||
+                 (std::isfinite(backdrop) && backdrop > 0.0 && backdrop <= kMaxSceneDistance),
+             "--backdrop must be a depth in (0, {}] m, got {}", kMaxSceneDistance, backdrop);
   const TriangleMesh mesh = LoadMeshSpec(mesh_path);
+  const double mesh_diagonal = mesh.BoundingDiagonal();
+  SOPE_CHECK(std::isfinite(mesh_diagonal) && mesh_diagonal > 0.0,
+             "mesh {}: its extent ({} units) is not a usable size", mesh_path, mesh_diagonal);
   Placement placement;
   placement.rotation = pose.rotation;
   placement.center_in_cam = pose.translation;
@@ -126,8 +148,11 @@ int RunSimulate(int argc, char** argv) {
 
   VirtualRig rig(calibration, sensor);
   const SimulatedScan scan = SimulateScan(rig, scene, patterns);
-  WriteSimulatedScan(out, scan);
   const int lit = cv::countNonZero(scan.ground_truth.lit);
+  SOPE_CHECK(lit > 0 || allow_empty,
+             "no camera pixel sees the object lit by the projector (is it in front of both, "
+             "within their fields of view? --allow-empty writes the empty frame set anyway)");
+  WriteSimulatedScan(out, scan);
   spdlog::info("rendered {} frames ({}x{} camera, {}x{} projector), {} pixels lit -> {}",
                scan.frames.images.size(), calibration.camera.width, calibration.camera.height,
                calibration.projector.width, calibration.projector.height, lit, out);

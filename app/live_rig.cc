@@ -5,6 +5,7 @@
 #include <csignal>
 
 #include "core/error.h"
+#include "core/file_util.h"
 
 namespace sope {
 namespace cli {
@@ -73,6 +74,8 @@ LiveRigOptions LiveRigFlags::RigOptions() const {
 
 InterruptFlag::InterruptFlag() {
   interrupted = false;
+  // Under sope's signal policy (core/file_util.h) signals reach its thread, not handlers.
+  if (BeginCooperativeInterrupts(&interrupted)) return;
   struct sigaction action {};
   action.sa_handler = OnSignal;
   sigemptyset(&action.sa_mask);
@@ -81,6 +84,7 @@ InterruptFlag::InterruptFlag() {
 }
 
 InterruptFlag::~InterruptFlag() {
+  if (EndCooperativeInterrupts()) return;
   sigaction(SIGINT, &previous_int, nullptr);
   sigaction(SIGTERM, &previous_term, nullptr);
 }

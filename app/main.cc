@@ -11,6 +11,7 @@
 
 #include "app/commands.h"
 #include "core/error.h"
+#include "core/file_util.h"
 
 namespace {
 
@@ -65,6 +66,8 @@ int main(int argc, char** argv) {
   for (const Command& command : kCommands) {
     if (command.name != std::string(argv[1])) continue;
     try {
+      // Before any thread starts: SIGINT/SIGTERM remove staged outputs and end with one line.
+      sope::InstallInterruptPolicy(fmt::format("sope {}", command.name));
       return command.run(argc - 1, argv + 1);
     } catch (const sope::Error& e) {
       std::fputs(fmt::format("sope {}: error: {}\n", command.name, e.what()).c_str(), stderr);

@@ -201,7 +201,7 @@ FrameSet RigSession::Capture(const std::vector<Pattern>& patterns, const Progres
 
 FrameSet RigSession::Record(const std::vector<Pattern>& patterns, const std::string& directory,
                             const RigCalibration* calibration, const Progress& progress) {
-  StagedDirectory staged(directory);
+  StagedDirectory staged(directory, FrameSetManifest::kFileName);
   FrameSet frames = CaptureInto(patterns, staged.path(), progress);
   if (calibration) {
     frames.manifest.calibration = kCalibrationFile;

@@ -41,6 +41,16 @@ void DistortWithJacobian(const std::vector<double>& d, const Eigen::Vector2d& p,
 
 void CameraModel::Check() const {
   SOPE_CHECK(width > 0 && height > 0, "invalid image size {}x{}", width, height);
+  SOPE_CHECK(width <= kMaxImageSide && height <= kMaxImageSide &&
+                 static_cast<int64_t>(width) * height <= kMaxImagePixels,
+             "image size {}x{} is beyond the limit ({} pixels a side, {} Mpx in all)", width,
+             height, kMaxImageSide, kMaxImagePixels >> 20);
+  SOPE_CHECK(matrix(2, 0) == 0.0 && matrix(2, 1) == 0.0 && matrix(2, 2) == 1.0,
+             "camera matrix bottom row must be 0 0 1, got {} {} {}", matrix(2, 0), matrix(2, 1),
+             matrix(2, 2));
+  SOPE_CHECK(matrix(1, 0) == 0.0 && std::isfinite(matrix(0, 1)),
+             "camera matrix must have the form [fx s cx; 0 fy cy; 0 0 1] (element (1,0) is {}, "
+             "skew {})", matrix(1, 0), matrix(0, 1));
   SOPE_CHECK(std::isfinite(fx()) && std::isfinite(fy()) && fx() > 0 && fy() > 0,
              "invalid focal lengths fx={} fy={}", fx(), fy());
   SOPE_CHECK(std::isfinite(cx()) && std::isfinite(cy()), "invalid principal point ({}, {})",

@@ -3,11 +3,17 @@
 // (0, 0); projector column c lights the projector pixel whose centre is x = c.
 #pragma once
 
+#include <cstdint>
 #include <vector>
 
 #include <Eigen/Core>
 
 namespace sope {
+
+// Largest camera/projector image sope accepts: a side of 16384 pixels and 32 Mpx in all
+// (a frame set holds tens of such frames in memory; beyond this allocations fail).
+constexpr int kMaxImageSide = 16384;
+constexpr int64_t kMaxImagePixels = int64_t{1} << 25;
 
 struct CameraModel {
   int width = 0;   // pixels
@@ -22,7 +28,8 @@ struct CameraModel {
   double cx() const { return matrix(0, 2); }
   double cy() const { return matrix(1, 2); }
 
-  // Throws sope::Error naming the offending value when sizes, focal lengths or the
+  // Throws sope::Error naming the offending value when sizes (1..kMaxImageSide, at most
+  // kMaxImagePixels), focal lengths, the matrix's bottom row (must be 0 0 1) or the
   // number of distortion coefficients are invalid.
   void Check() const;
   bool HasDistortion() const;

@@ -83,5 +83,36 @@ TEST(CameraModel, MakePinholeHasTheRequestedFieldOfView) {
   EXPECT_NEAR(model.cx(), 319.5, 1e-9);
 }
 
+// Issue 13: a matrix whose bottom row is not 0 0 1 scanned with exit 0; a 999999×999999
+// camera failed with std::bad_alloc later.
+TEST(CameraModel, CheckRejectsABadBottomRowAndHugeImages) {
+  CameraModel model = MakePinhole(320, 240, 1.0);
+  EXPECT_NO_THROW(model.Check());
+  CameraModel bad = model;
+  bad.matrix.row(2) << 5, 7, 0;
+  try {
+    bad.Check();
+    ADD_FAILURE() << "no exception";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("bottom row must be 0 0 1"), std::string::npos)
+        << e.what();
+  }
+  bad = model;
+  bad.matrix(1, 0) = 0.3;
+  EXPECT_THROW(bad.Check(), Error);
+  bad = model;
+  bad.width = bad.height = 999999;
+  try {
+    bad.Check();
+    ADD_FAILURE() << "no exception";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("beyond the limit"), std::string::npos) << e.what();
+  }
+  bad = model;
+  bad.width = kMaxImageSide;
+  bad.height = kMaxImageSide;  // each side fine, the pixel count not
+  EXPECT_THROW(bad.Check(), Error);
+}
+
 }  // namespace
 }  // namespace sope

@@ -1,9 +1,15 @@
 // Point-cloud files: PLY by our own reader/writer (binary little-endian by default), PCD
 // through PCL's reader/writer.
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <random>
 #include <sstream>
+#include <vector>
 
 #include <fmt/format.h>
 #include <pcl/PCLPointCloud2.h>
@@ -46,8 +52,145 @@ PointCloud ReadPlyCloud(const std::string& path) {
   return cloud;
 }
 
+// Splits on blanks.
+std::vector<std::string> Words(const std::string& line) {
+  std::istringstream stream(line);
+  std::vector<std::string> words;
+  for (std::string word; stream >> word;) words.push_back(word);
+  return words;
+}
+
+// A whole-token non-negative integer, ≤ `limit`.
+uint64_t PcdNumber(const std::string& word, uint64_t limit, const std::string& what,
+                   const std::string& path) {
+  SOPE_CHECK(!word.empty() && word.size() <= 19 &&
+                 word.find_first_not_of("0123456789") == std::string::npos,
+             "point cloud {}: PCD header {} '{}' is not a non-negative integer", path, what,
+             word);
+  const uint64_t value = std::stoull(word);
+  SOPE_CHECK(value <= limit, "point cloud {}: PCD header {} {} is beyond the limit {}", path,
+             what, value, limit);
+  return value;
+}
+
+void ValidatePcdHeader(const std::string& data, const std::string& path) {
+  constexpr size_t kMaxFields = 256;
+  constexpr uint64_t kMaxCount = 1 << 16;
+  constexpr uint64_t kMaxPoints = uint64_t{1} << 32;
+  SOPE_CHECK(!data.empty(), "point cloud {}: empty file (not a PCD file)", path);
+  std::vector<std::string> fields;
+  std::vector<uint64_t> sizes, counts;
+  std::vector<char> types;
+  uint64_t width = 0, height = 1, points = 0;
+  bool have_width = false, have_points = false;
+  std::string encoding;
+  size_t offset = 0;
+  while (encoding.empty()) {
+    SOPE_CHECK(offset < data.size(), "point cloud {}: PCD header ends before its DATA line",
+               path);
+    size_t end = data.find('\n', offset);
+    if (end == std::string::npos) end = data.size();
+    std::string line = data.substr(offset, end - offset);
+    offset = end + 1;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    const std::vector<std::string> words = Words(line);
+    if (words.empty() || words[0][0] == '#') continue;
+    const std::string& key = words[0];
+    const size_t n = words.size() - 1;
+    if (key == "VERSION") {
+      SOPE_CHECK(n == 1, "point cloud {}: malformed PCD header line '{}'", path, line);
+    } else if (key == "FIELDS") {
+      SOPE_CHECK(n >= 1 && n <= kMaxFields, "point cloud {}: PCD header has {} fields", path, n);
+      fields.assign(words.begin() + 1, words.end());
+    } else if (key == "SIZE") {
+      for (size_t i = 1; i <= n; ++i) {
+        const uint64_t size = PcdNumber(words[i], 8, "SIZE", path);
+        SOPE_CHECK(size == 1 || size == 2 || size == 4 || size == 8,
+                   "point cloud {}: PCD field size {} (expected 1, 2, 4 or 8)", path, size);
+        sizes.push_back(size);
+      }
+    } else if (key == "TYPE") {
+      for (size_t i = 1; i <= n; ++i) {
+        SOPE_CHECK(words[i] == "F" || words[i] == "I" || words[i] == "U",
+                   "point cloud {}: PCD field type '{}' (expected F, I or U)", path, words[i]);
+        types.push_back(words[i][0]);
+      }
+    } else if (key == "COUNT") {
+      for (size_t i = 1; i <= n; ++i) {
+        const uint64_t count = PcdNumber(words[i], kMaxCount, "COUNT", path);
+        SOPE_CHECK(count >= 1, "point cloud {}: PCD field count 0", path);
+        counts.push_back(count);
+      }
+    } else if (key == "WIDTH") {
+      SOPE_CHECK(n == 1, "point cloud {}: malformed PCD header line '{}'", path, line);
+      width = PcdNumber(words[1], kMaxPoints, "WIDTH", path);
+      have_width = true;
+    } else if (key == "HEIGHT") {
+      SOPE_CHECK(n == 1, "point cloud {}: malformed PCD header line '{}'", path, line);
+      height = PcdNumber(words[1], kMaxPoints, "HEIGHT", path);
+    } else if (key == "VIEWPOINT") {
+      SOPE_CHECK(n == 7, "point cloud {}: PCD VIEWPOINT needs 7 numbers", path);
+    } else if (key == "POINTS") {
+      SOPE_CHECK(n == 1, "point cloud {}: malformed PCD header line '{}'", path, line);
+      points = PcdNumber(words[1], kMaxPoints, "POINTS", path);
+      have_points = true;
+    } else if (key == "DATA") {
+      SOPE_CHECK(n == 1 && (words[1] == "ascii" || words[1] == "binary" ||
+                            words[1] == "binary_compressed"),
+                 "point cloud {}: PCD DATA must be ascii, binary or binary_compressed", path);
+      encoding = words[1];
+    } else {
+      SOPE_THROW("point cloud {}: not a PCD file (unexpected header line '{}')", path,
+                 line.substr(0, 40));
+    }
+  }
+  SOPE_CHECK(!fields.empty() && have_width,
+             "point cloud {}: PCD header lacks FIELDS or WIDTH", path);
+  if (counts.empty()) counts.assign(fields.size(), 1);
+  SOPE_CHECK(sizes.size() == fields.size() && types.size() == fields.size() &&
+                 counts.size() == fields.size(),
+             "point cloud {}: PCD header has {} fields but {} sizes, {} types, {} counts", path,
+             fields.size(), sizes.size(), types.size(), counts.size());
+  for (size_t i = 0; i < fields.size(); ++i) {
+    SOPE_CHECK(types[i] != 'F' || sizes[i] == 4 || sizes[i] == 8,
+               "point cloud {}: PCD field {} is F of size {}", path, fields[i], sizes[i]);
+  }
+  SOPE_CHECK(height >= 1 && width <= kMaxPoints / height,
+             "point cloud {}: PCD WIDTH {} x HEIGHT {} is invalid", path, width, height);
+  if (!have_points) points = width * height;
+  SOPE_CHECK(points == width * height, "point cloud {}: PCD POINTS {} but WIDTH x HEIGHT = {}",
+             path, points, width * height);
+  uint64_t point_step = 0, values = 0;
+  for (size_t i = 0; i < fields.size(); ++i) {
+    point_step += sizes[i] * counts[i];
+    values += counts[i];
+  }
+  const uint64_t body = offset <= data.size() ? data.size() - offset : 0;
+  if (encoding == "binary") {
+    SOPE_CHECK(points <= body / point_step,
+               "point cloud {}: PCD data truncated ({} points of {} bytes need {} bytes, {} "
+               "present)", path, points, point_step, points * point_step, body);
+  } else if (encoding == "binary_compressed") {
+    SOPE_CHECK(body >= 8, "point cloud {}: PCD compressed data truncated", path);
+    uint32_t compressed = 0, uncompressed = 0;
+    std::memcpy(&compressed, data.data() + offset, 4);
+    std::memcpy(&uncompressed, data.data() + offset + 4, 4);
+    SOPE_CHECK(compressed <= body - 8 && uncompressed == points * point_step,
+               "point cloud {}: PCD compressed data sizes ({} compressed, {} uncompressed) do "
+               "not match the header ({} points of {} bytes, {} bytes present)",
+               path, compressed, uncompressed, points, point_step, body - 8);
+  } else {
+    // ASCII: every value takes at least one character and one separator.
+    SOPE_CHECK(points <= (body + 1) / (2 * values),
+               "point cloud {}: PCD ASCII data truncated ({} points of {} values cannot fit "
+               "in {} bytes)", path, points, values, body);
+  }
+}
+
 PointCloud ReadPcdCloud(const std::string& path) {
-  RequireReadableFile(path, "point cloud");
+  // PCL's reader dereferences a header it has not checked (an empty file or "hello world"
+  // crashes it): validate the header and the data size against it first.
+  ValidatePcdHeader(ReadFileToString(path, "point cloud"), path);
   pcl::PCLPointCloud2 blob;
   pcl::PCDReader reader;
   // PCL reports problems on the console; we report them as one error instead.
@@ -166,16 +309,32 @@ void WritePcdCloud(const std::string& path, const PointCloud& cloud) {
     }
     pcl::toPCLPointCloud2(xyz, blob);
   }
-  // PCL writes in place: write a temporary beside the target, then rename it.
+  // PCL writes in place: write a registered temporary beside the target (removed on an
+  // interrupt like WriteFileAtomic's), then rename it.
   const std::filesystem::path target(path);
+  static thread_local std::mt19937_64 engine(std::random_device{}());
   const std::string temporary =
-      (target.parent_path() / ("." + target.filename().string() + ".tmp")).string();
+      (target.parent_path() /
+       fmt::format(".{}.tmp-{:06x}", target.filename().string(), engine() & 0xffffff))
+          .string();
+  int fd = -1;
+  internal::RegisterTemporary(temporary, [&] {
+    fd = ::open(temporary.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  });
+  if (fd < 0) {
+    const std::string reason = std::strerror(errno);
+    internal::FinishTemporary(temporary, [] {});
+    SOPE_THROW("cannot write {}: {}", path, reason);
+  }
+  ::close(fd);
   pcl::PCDWriter writer;
   const int result = writer.writeBinary(temporary, blob);
-  if (result != 0 || std::rename(temporary.c_str(), path.c_str()) != 0) {
-    std::remove(temporary.c_str());
-    SOPE_THROW("cannot write {}", path);
-  }
+  bool renamed = false;
+  internal::FinishTemporary(temporary, [&] {
+    renamed = result == 0 && std::rename(temporary.c_str(), path.c_str()) == 0;
+    if (!renamed) std::remove(temporary.c_str());
+  });
+  SOPE_CHECK(renamed, "cannot write {}", path);
 }
 
 }  // namespace

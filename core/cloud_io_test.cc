@@ -1,4 +1,6 @@
+#include <filesystem>
 #include <fstream>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -96,6 +98,63 @@ TEST(CloudIo, MismatchedAttributesRefusedOnWrite) {
   cloud.colors.pop_back();
   EXPECT_THROW_WITH_MESSAGE(WritePointCloud(scratch.File("x.ply"), cloud), Error,
                             "99 colours for 100 points");
+}
+
+// Issue 13: an empty PCD, "hello world" or only "VERSION 0.7" crashed pcl::PCDReader
+// (SIGSEGV); the header is validated before PCL sees the file.
+TEST(CloudIo, MalformedPcdHeadersAreClearErrors) {
+  testing::ScratchDir scratch;
+  auto error_for = [&](const std::string& text) -> std::string {
+    WriteFileAtomic(scratch.File("bad.pcd"), text);
+    try {
+      ReadPointCloud(scratch.File("bad.pcd"));
+    } catch (const Error& e) {
+      return e.what();
+    }
+    return "";
+  };
+  const std::string header =
+      "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+      "WIDTH 3\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\n";
+  struct Case {
+    std::string text, needle;
+  };
+  const std::vector<Case> cases = {
+      {"", "empty file"},
+      {"hello world", "not a PCD file"},
+      {"VERSION 0.7\n", "ends before its DATA line"},
+      {"VERSION 0.7", "ends before its DATA line"},
+      {header + "DATA binary\n" + std::string(20, '\0'), "truncated"},
+      {header + "DATA ascii\n0 0 0.5\n", "truncated"},
+      {header + "DATA binary_compressed\n", "compressed data truncated"},
+      {"FIELDS x y z\nSIZE 4 4\nTYPE F F F\nWIDTH 1\nDATA ascii\n0 0 1\n", "2 sizes"},
+      {"FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 1\nPOINTS 7\nDATA ascii\n0 0 1\n",
+       "POINTS 7"},
+      {"FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH -1\nDATA ascii\n", "WIDTH '-1'"},
+      {"FIELDS x y z\nSIZE 4 4 3\nTYPE F F F\nWIDTH 1\nDATA ascii\n0 0 1\n", "size 3"},
+      {"FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 99999999999\nHEIGHT 99999999999\n"
+       "DATA binary\n", "beyond the limit"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.text.substr(0, 60));
+    const std::string error = error_for(c.text);
+    EXPECT_NE(error.find("bad.pcd"), std::string::npos) << error;
+    EXPECT_NE(error.find(c.needle), std::string::npos) << error;
+  }
+  // The same header with its data reads.
+  EXPECT_EQ(error_for(header + "DATA ascii\n0 0 0.5\n0 0.1 0.5\n0.1 0 0.5\n"), "");
+  EXPECT_EQ(ReadPointCloud(scratch.File("bad.pcd")).size(), 3u);
+}
+
+TEST(CloudIo, PcdWriteLeavesNoTemporary) {
+  testing::ScratchDir scratch;
+  WritePointCloud(scratch.File("c.pcd"), TestCloud(false, false));
+  EXPECT_EQ(internal::RegisteredTemporaryCount(), 0u);
+  size_t entries = 0;
+  for ([[maybe_unused]] const auto& entry : std::filesystem::directory_iterator(scratch.path())) {
+    ++entries;
+  }
+  EXPECT_EQ(entries, 1u);
 }
 
 }  // namespace

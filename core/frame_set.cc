@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <set>
 #include <tuple>
+#include <type_traits>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -27,6 +29,19 @@ constexpr int kMaxDeviceSize = 1 << kMaxCodeBits;
 template <typename T>
 T Get(const json& object, const char* key, const std::string& where) {
   SOPE_CHECK(object.is_object() && object.contains(key), "{}: missing '{}'", where, key);
+  if constexpr (std::is_integral_v<T> && !std::is_same_v<T, bool>) {
+    // nlohmann's get<int>() truncates 320.7, wraps 4294967616 and saturates 1e30: only
+    // an exact integer in range is accepted.
+    const json& value = object.at(key);
+    SOPE_CHECK(value.is_number_integer(), "{}: '{}' has the wrong type: must be an integer, got {}", where, key,
+               value.dump());
+    const bool in_range =
+        value.is_number_unsigned()
+            ? value.get<uint64_t>() <= static_cast<uint64_t>(std::numeric_limits<T>::max())
+            : value.get<int64_t>() >= static_cast<int64_t>(std::numeric_limits<T>::min()) &&
+                  value.get<int64_t>() <= static_cast<int64_t>(std::numeric_limits<T>::max());
+    SOPE_CHECK(in_range, "{}: '{}' = {} is out of range", where, key, value.dump());
+  }
   try {
     return object.at(key).get<T>();
   } catch (const json::exception&) {
@@ -441,7 +456,7 @@ void WriteFrameSetFiles(const std::string& directory, const FrameSet& frame_set)
 
 void WriteFrameSet(const std::string& directory, const FrameSet& frame_set) {
   frame_set.Check();
-  StagedDirectory staged(directory);
+  StagedDirectory staged(directory, FrameSetManifest::kFileName);
   WriteFrameSetFiles(staged.path(), frame_set);
   staged.Commit();
 }

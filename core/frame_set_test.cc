@@ -325,5 +325,29 @@ TEST(FrameSet, CheckRejectsMixedBitDepths) {
   EXPECT_THROW_WITH_MESSAGE(set.Check(), Error, "black.png", "bit depth");
 }
 
+// Issue 13: nlohmann's get<int>() wrapped 4294967616 to 320, truncated 320.7 and saturated
+// 1e30; only exact integers in range are accepted.
+TEST(FrameSet, NonIntegerOrOutOfRangeNumbersAreRefused) {
+  using nlohmann::json;
+  const json good = json::parse(SerializeFrameSetManifest(SmallManifest()));
+  auto parse = [](const json& j) { ParseFrameSetManifest(j.dump(), "m.json"); };
+  for (const json& width : {json(4294967616ull), json(320.7), json(1e30), json(-4294967296ll)}) {
+    json j = good;
+    j["camera"]["width"] = width;
+    const std::string error = ErrorOf([&] { parse(j); });
+    SCOPED_TRACE(width.dump());
+    EXPECT_NE(error.find("'width'"), std::string::npos) << error;
+    EXPECT_TRUE(error.find("must be an integer") != std::string::npos ||
+                error.find("out of range") != std::string::npos)
+        << error;
+  }
+  json j = good;
+  j["frames"][2]["bit"] = 0.5;
+  EXPECT_NE(ErrorOf([&] { parse(j); }).find("'bit' has the wrong type: must be an integer"), std::string::npos);
+  j = good;
+  j["camera"]["width"] = 320.0;  // a float, even a whole one, is not an integer in JSON
+  EXPECT_NE(ErrorOf([&] { parse(j); }).find("must be an integer"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace sope

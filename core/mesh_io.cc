@@ -82,6 +82,12 @@ TriangleMesh ReadOff(const std::string& path) {
   SOPE_CHECK(static_cast<bool>(words >> vertex_count >> face_count >> edge_count) &&
                  vertex_count >= 0 && face_count >= 0,
              "mesh {}: malformed OFF counts", path);
+  // The vertex count against the file size before allocating: a vertex is three numbers,
+  // each at least one character and a separator. (Faces are not allocated by count; a
+  // truncated face list fails at the first missing face.)
+  SOPE_CHECK(6.0 * static_cast<double>(vertex_count) <= static_cast<double>(cleaned.size()) + 1.0,
+             "mesh {}: OFF claims {} vertices, more than its {} bytes can hold", path,
+             vertex_count, cleaned.size());
   TriangleMesh mesh;
   mesh.vertices.resize(vertex_count);
   for (long i = 0; i < vertex_count; ++i) {

@@ -87,5 +87,39 @@ TEST(MeshIo, SharedMeshesLoadWhenPresent) {
   }
 }
 
+// Issue 13: counts beyond what the file can hold were allocated first (std::bad_alloc,
+// "vector::_M_default_append"); now they are refused naming the count.
+TEST(MeshIo, CountsBeyondTheFileSizeAreRefusedBeforeAllocating) {
+  testing::ScratchDir scratch;
+  auto error_for = [&](const std::string& name, const std::string& text) -> std::string {
+    WriteFileAtomic(scratch.File(name), text);
+    try {
+      ReadMesh(scratch.File(name));
+    } catch (const Error& e) {
+      return e.what();
+    }
+    return "";
+  };
+  std::string error = error_for("huge.ply",
+                                "ply\nformat ascii 1.0\nelement vertex 9223372036854775807\n"
+                                "property float x\nproperty float y\nproperty float z\n"
+                                "end_header\n0 0 0\n");
+  EXPECT_NE(error.find("9223372036854775807 rows"), std::string::npos) << error;
+  std::string hundred =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 1000000000\nproperty float x\n"
+      "property float y\nproperty float z\nelement face 1\n"
+      "property list uchar int vertex_indices\nend_header\n";
+  hundred += std::string(100 * 12, '\0');
+  error = error_for("short.ply", hundred);
+  EXPECT_NE(error.find("1000000000 rows"), std::string::npos) << error;
+  error = error_for("noprops.ply",
+                    "ply\nformat ascii 1.0\nelement junk 9000000000000000000\nend_header\n");
+  EXPECT_NE(error.find("junk"), std::string::npos) << error;
+  error = error_for("huge.off", "OFF\n1000000000000 1 0\n0 0 0\n");
+  EXPECT_NE(error.find("1000000000000 vertices"), std::string::npos) << error;
+  // A count that does fit still reads.
+  EXPECT_EQ(error_for("ok.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"), "");
+}
+
 }  // namespace
 }  // namespace sope

@@ -192,6 +192,25 @@ std::vector<PlyElement> ReadPly(const std::string& path, const std::vector<std::
     }
   }
   SOPE_CHECK(have_format, "PLY {}: no format line", path);
+  // Counts against the file size before anything is allocated or looped over: a binary
+  // row takes at least the bytes of its scalars and list counts, an ASCII row at least two
+  // characters per scalar or list count (a digit and a separator).
+  const size_t body_bytes = data.size() - std::min(body, data.size());
+  size_t needed = 0;
+  for (const PlyElement& element : elements) {
+    size_t row_bytes = 0;
+    for (const PlyProperty& p : element.properties) {
+      row_bytes += encoding == Encoding::kAscii ? 2 : TypeSize(p.is_list ? p.list_count_type : p.type);
+    }
+    // An element without properties takes no bytes: bound its count by the file size.
+    const size_t per_row = std::max<size_t>(row_bytes, 1);
+    const size_t slack = encoding == Encoding::kAscii ? 1 : 0;
+    SOPE_CHECK(element.count <= (body_bytes + slack - std::min(needed, body_bytes + slack)) / per_row,
+               "PLY {}: truncated or corrupt: element '{}' claims {} rows, more than the {} "
+               "bytes of data can hold",
+               path, element.name, element.count, body_bytes);
+    needed += element.count * per_row;
+  }
   if (encoding == Encoding::kAscii) {
     AsciiCursor cursor(data, body, path);
     ReadBody(cursor, wanted, &elements, path);

@@ -952,8 +952,11 @@ cv::Mat ColorizeCoordinate(const cv::Mat& coordinate, int projector_size) {
   return colour;
 }
 
-void WriteCorrespondenceMap(const std::string& directory, const CorrespondenceMap& map) {
+void WriteCorrespondenceMap(const std::string& directory_path, const CorrespondenceMap& map) {
   internal::CheckMap(map);
+  // Staged as a whole: a full disk or a signal leaves no half map directory.
+  StagedDirectory staged(directory_path, internal::kMapJson);
+  const std::string& directory = staged.path();
   nlohmann::json root;
   root["format"] = internal::kMapFormat;
   root["camera"] = {{"width", map.width()}, {"height", map.height()}};
@@ -979,6 +982,7 @@ void WriteCorrespondenceMap(const std::string& directory, const CorrespondenceMa
                    internal::ColorizeConfidence(map.confidence, map.mask));
   // Last, so that a complete correspondence.json implies complete images.
   WriteFileAtomic(JoinPath(directory, internal::kMapJson), root.dump(2) + "\n");
+  staged.Commit();
 }
 
 CorrespondenceMap ReadCorrespondenceMap(const std::string& directory) {

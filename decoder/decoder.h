@@ -159,7 +159,9 @@ class IncrementalDecoder {
 // Writes proj_x.exr / proj_y.exr (float, NaN invalid), mask.png, confidence.exr,
 // correspondence.json (projector size, steps), and the colourised views proj_x.png /
 // proj_y.png (hue = coordinate, black = invalid) and confidence.png into `directory`,
-// creating it. Atomic per file.
+// creating it. Written as a whole (StagedDirectory): nothing partial on a failure or a
+// signal; an existing non-empty directory is replaced only when it holds a
+// correspondence.json (an earlier map), otherwise refused.
 void WriteCorrespondenceMap(const std::string& directory, const CorrespondenceMap& map);
 // Reads what WriteCorrespondenceMap wrote; throws sope::Error on missing/mismatched files.
 CorrespondenceMap ReadCorrespondenceMap(const std::string& directory);

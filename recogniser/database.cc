@@ -563,6 +563,111 @@ struct Database::Impl {
   int cloud_stride = 0;
 };
 
+namespace {
+
+// Keys of `stored` (recursively) that `known` does not have: options this sope does not
+// know would otherwise be ignored silently.
+void FindUnknownKeys(const json& stored, const json& known, const std::string& prefix,
+                     std::vector<std::string>* unknown) {
+  if (!stored.is_object() || !known.is_object()) return;
+  for (auto it = stored.begin(); it != stored.end(); ++it) {
+    const std::string name = prefix.empty() ? it.key() : prefix + "." + it.key();
+    if (!known.contains(it.key())) {
+      unknown->push_back(name);
+    } else {
+      FindUnknownKeys(it.value(), known.at(it.key()), name, unknown);
+    }
+  }
+}
+
+bool FiniteArray(const float* values, size_t count) {
+  for (size_t i = 0; i < count; ++i) {
+    if (!std::isfinite(values[i])) return false;
+  }
+  return true;
+}
+
+// The decoded contents, beyond the checksums (which a crafted file can get right): every
+// number the recogniser divides by or compares with is finite and in range, the models'
+// view ranges tile the views in order, and no option is unknown.
+template <typename DatabaseImpl>  // Database::Impl (private, named by Database::Open)
+void ValidateDecodedContents(const DatabaseImpl& impl, const json& stored_options,
+                             bool check_mapped, const std::string& path) {
+  try {
+    impl.options.Check();
+  } catch (const Error& e) {
+    SOPE_THROW("database {} is corrupted: invalid options ({})", path, e.what());
+  }
+  std::vector<std::string> unknown;
+  FindUnknownKeys(stored_options, OptionsToJsonObject(impl.options), "", &unknown);
+  SOPE_CHECK(unknown.empty(), "database {} is corrupted: unknown option '{}' ({} unknown)",
+             path, unknown.empty() ? "" : unknown.front(), unknown.size());
+  const int num_views = static_cast<int>(impl.views.size());
+  int expected_first = 0;
+  for (size_t m = 0; m < impl.models.size(); ++m) {
+    const ModelRecord& model = impl.models[m];
+    SOPE_CHECK(model.first_view == expected_first && model.num_views >= 1,
+               "database {} is corrupted: model {} views [{}, +{}) do not follow the previous "
+               "model's (expected first view {}, at least one view)",
+               path, model.name, model.first_view, model.num_views, expected_first);
+    SOPE_CHECK(impl.classes[model.class_index] == model.class_name,
+               "database {} is corrupted: model {} names class '{}', index {} is '{}'", path,
+               model.name, model.class_name, model.class_index, impl.classes[model.class_index]);
+    auto positive = [](double v) { return std::isfinite(v) && v > 0.0; };
+    SOPE_CHECK(positive(model.scale) && positive(model.diameter) &&
+                   positive(model.bounding_radius) && positive(model.cloud_quantum) &&
+                   model.center.allFinite(),
+               "database {} is corrupted: model {} has an invalid size (scale {}, diameter {} "
+               "m, bounding radius {} m, cloud quantum {} m)",
+               path, model.name, model.scale, model.diameter, model.bounding_radius,
+               model.cloud_quantum);
+    expected_first += model.num_views;
+  }
+  SOPE_CHECK(expected_first == num_views, "database {} is corrupted: models cover {} views, {} "
+             "stored", path, expected_first, num_views);
+  for (int v = 0; v < num_views; ++v) {
+    const ViewRecord& view = impl.views[v];
+    const ModelRecord& model = impl.models[view.model];
+    SOPE_CHECK(v >= model.first_view && v < model.first_view + model.num_views,
+               "database {} is corrupted: view {} names model {}, whose views are [{}, +{})",
+               path, v, model.name, model.first_view, model.num_views);
+    SOPE_CHECK(std::isfinite(view.distance) && view.distance > 0.0 &&
+                   std::isfinite(view.radius) && view.radius > 0.0f &&
+                   std::isfinite(view.cloud_spacing) && view.cloud_spacing >= 0.0f &&
+                   view.centroid_in_model.allFinite() &&
+                   view.cam_from_model.rotation.allFinite() &&
+                   view.cam_from_model.translation.allFinite() &&
+                   std::isfinite(view.viewpoint.theta) && std::isfinite(view.viewpoint.phi) &&
+                   view.preprocessed_points >= 0,
+               "database {} is corrupted: view {} has a non-finite or non-positive pose, "
+               "distance or radius", path, v);
+  }
+  const DistanceScales& scales = impl.distance_scales;
+  for (double scale : {scales.fine, scales.coarse, scales.size}) {
+    SOPE_CHECK(std::isfinite(scale) && scale > 0.0,
+               "database {} is corrupted: distance scale {} is not a positive number", path,
+               scale);
+  }
+  SOPE_CHECK(FiniteArray(impl.coarse_mean.data(), impl.coarse_mean.size()) &&
+                 FiniteArray(impl.fine_mean.data(), impl.fine_mean.size()) &&
+                 std::isfinite(impl.fine_hash_scale) && impl.fine_hash_scale >= 0.0f,
+             "database {} is corrupted: non-finite standardisation", path);
+  for (Eigen::Index d = 0; d < impl.coarse_scale.size(); ++d) {
+    SOPE_CHECK(std::isfinite(impl.coarse_scale[d]) && impl.coarse_scale[d] > 0.0f,
+               "database {} is corrupted: coarse scale {} of dimension {} is not positive",
+               path, impl.coarse_scale[d], d);
+  }
+  if (check_mapped) {
+    // The mapped feature sections are read once for their checksums anyway.
+    SOPE_CHECK(FiniteArray(impl.coarse, static_cast<size_t>(impl.coarse_dim) * num_views),
+               "database {} is corrupted: a coarse feature vector holds NaN or infinity", path);
+    SOPE_CHECK(FiniteArray(impl.fine, static_cast<size_t>(impl.fine_dim) * num_views),
+               "database {} is corrupted: a fine feature vector holds NaN or infinity", path);
+  }
+}
+
+}  // namespace
+
 Database::Database(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 Database::~Database() = default;
 
@@ -571,12 +676,11 @@ std::unique_ptr<Database> Database::Open(const std::string& path,
   auto impl = std::make_unique<Impl>();
   impl->path = path;
   MappedFile& file = impl->file;
-  file.fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  SOPE_CHECK(file.fd >= 0, "cannot open database {}: {}", path, std::strerror(errno));
+  // Non-blocking open: a FIFO named as the database would block open(2) forever.
+  file.fd = OpenRegularFileForReading(path, "database");
   struct stat st {};
   SOPE_CHECK(::fstat(file.fd, &st) == 0, "cannot stat database {}: {}", path,
              std::strerror(errno));
-  SOPE_CHECK(S_ISREG(st.st_mode), "database {} is not a regular file", path);
   const uint64_t actual_size = static_cast<uint64_t>(st.st_size);
   SOPE_CHECK(actual_size >= sizeof(kMagic), "{} is not a sope database (only {} bytes)", path,
              actual_size);
@@ -641,13 +745,15 @@ std::unique_ptr<Database> Database::Open(const std::string& path,
 
   // metadata
   int num_views = 0;
+  json stored_options;
   try {
     const json meta = json::parse(reinterpret_cast<const char*>(section(kMetadata)),
                                   reinterpret_cast<const char*>(section(kMetadata)) +
                                       section_size(kMetadata));
     SOPE_CHECK(meta.value("format", "") == "sope-db",
                "database {} is corrupted: metadata format is not sope-db", path);
-    impl->options = OptionsFromJsonObject(meta.at("options"));
+    stored_options = meta.at("options");
+    impl->options = OptionsFromJsonObject(stored_options);
     impl->classes = meta.at("classes").get<std::vector<std::string>>();
     for (const json& m : meta.at("models")) {
       ModelRecord model;
@@ -715,7 +821,8 @@ std::unique_ptr<Database> Database::Open(const std::string& path,
   }
   for (const ModelRecord& model : impl->models) {
     SOPE_CHECK(model.first_view >= 0 && model.num_views >= 0 &&
-                   model.first_view + model.num_views <= num_views && model.class_index >= 0 &&
+                   int64_t{model.first_view} + model.num_views <= num_views &&
+                   model.class_index >= 0 &&
                    model.class_index < static_cast<int>(impl->classes.size()) &&
                    model.cloud_quantum > 0.0,
                "database {} is corrupted: model {} is invalid", path, model.name);
@@ -758,6 +865,7 @@ std::unique_ptr<Database> Database::Open(const std::string& path,
   impl->fine = reinterpret_cast<const float*>(section(kFine));
   impl->clouds = reinterpret_cast<const CloudPointOnDisk*>(section(kClouds));
   impl->cloud_stride = stride;
+  ValidateDecodedContents(*impl, stored_options, options.verify_mapped_sections, path);
   return std::unique_ptr<Database>(new Database(std::move(impl)));
 }
 

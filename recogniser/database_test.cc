@@ -1,10 +1,15 @@
 #include "recogniser/database.h"
 
+#include <sys/stat.h>
+
 #include <cstring>
 #include <fstream>
+#include <functional>
+#include <limits>
 #include <random>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "core/error.h"
 #include "core/file_util.h"
@@ -335,6 +340,115 @@ TEST(Database, OptionsPresetsAndJson) {
   bad = sope;
   bad.view_cloud_points = 4;
   EXPECT_THROW_WITH_MESSAGE(bad.Check(), Error, "view_cloud_points", "got 4");
+}
+
+// Issue 13: crafted databases whose checksums are right but whose contents are not opened
+// and answered. These helpers re-checksum what they change, as a crafter would.
+void Rechecksum(std::string* bytes, int section) {
+  char* entry = &(*bytes)[64 + 40 * section];
+  uint64_t offset, size;
+  std::memcpy(&offset, entry + 16, 8);
+  std::memcpy(&size, entry + 24, 8);
+  const uint32_t crc = Crc32c(bytes->data() + offset, size);
+  std::memcpy(entry + 32, &crc, 4);
+  uint32_t header_bytes;
+  std::memcpy(&header_bytes, bytes->data() + 12, 4);
+  std::string head = bytes->substr(0, header_bytes);
+  std::memset(&head[20], 0, 4);
+  const uint32_t header_crc = Crc32c(head.data(), head.size());
+  std::memcpy(&(*bytes)[20], &header_crc, 4);
+}
+
+// The metadata JSON edited by `edit`, written back in the same number of bytes (padded
+// with spaces), re-checksummed.
+std::string WithMetadata(const std::string& bytes,
+                         const std::function<void(nlohmann::json*)>& edit) {
+  std::string out = bytes;
+  const uint64_t offset = SectionOffset(bytes, "metadata");
+  uint64_t size;
+  std::memcpy(&size, bytes.data() + 64 + 24, 8);
+  nlohmann::json meta = nlohmann::json::parse(bytes.substr(offset, size));
+  edit(&meta);
+  std::string text = meta.dump();
+  EXPECT_LE(text.size(), size);
+  text.resize(size, ' ');
+  out.replace(offset, size, text);
+  Rechecksum(&out, 0);
+  return out;
+}
+
+TEST(Database, RefusesCraftedContentsWithValidChecksums) {
+  testing::ScratchDir scratch;
+  const std::string path = scratch.File("db.sopedb");
+  WriteDatabase(path, MakeSyntheticData(8));
+  const std::string bytes = ReadBytes(path);
+  ASSERT_EQ(OpenError(path), "");
+  // The crafter's own checksums are right: an unchanged rewrite opens.
+  WriteBytes(scratch.File("same.sopedb"), WithMetadata(bytes, [](nlohmann::json*) {}));
+  ASSERT_EQ(OpenError(scratch.File("same.sopedb")), "");
+
+  struct Case {
+    std::string name, needle;
+    std::function<void(nlohmann::json*)> edit;
+  };
+  const std::vector<Case> cases = {
+      {"zero scale", "invalid size (scale 0",
+       [](nlohmann::json* m) { (*m)["models"][1]["scale"] = 0.0; }},
+      {"negative scale", "invalid size (scale -2",
+       [](nlohmann::json* m) { (*m)["models"][1]["scale"] = -2.0; }},
+      {"zero diameter", "diameter 0",
+       [](nlohmann::json* m) { (*m)["models"][0]["diameter"] = 0.0; }},
+      {"overlapping first_view", "do not follow",
+       [](nlohmann::json* m) { (*m)["models"][1]["first_view"] = 3; }},  // inside model 0's
+      {"num_views 0", "do not follow",
+       [](nlohmann::json* m) {
+         (*m)["models"][1]["num_views"] = 0;
+         (*m)["models"][2]["first_view"] = 7;
+         (*m)["models"][2]["num_views"] = 14;
+       }},
+      {"unknown option key", "unknown option 'preprocess.turbo'",
+       [](nlohmann::json* m) {
+         (*m)["options"]["preprocess"]["turbo"] = true;
+         for (auto& model : (*m)["models"]) model["source"] = "";
+       }},
+      {"zero distance scale", "distance scale 0",
+       [](nlohmann::json* m) { (*m)["distance_scales"]["fine"] = 0.0; }},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    WriteBytes(scratch.File("crafted.sopedb"), WithMetadata(bytes, c.edit));
+    const std::string error = OpenError(scratch.File("crafted.sopedb"));
+    EXPECT_NE(error.find("corrupted"), std::string::npos) << error;
+    EXPECT_NE(error.find(c.needle), std::string::npos) << error;
+  }
+
+  // NaN in a feature vector (coarse and fine) and a zero standardisation scale.
+  for (const char* section : {"coarse", "fine", "standard"}) {
+    SCOPED_TRACE(section);
+    std::string crafted = bytes;
+    const uint64_t offset = SectionOffset(bytes, section);
+    // "standard" is coarse_mean then coarse_scale (12 values each): value 13 is a scale.
+    const float bad = std::string(section) == "standard" ? 0.0f
+                                                         : std::numeric_limits<float>::quiet_NaN();
+    std::memcpy(&crafted[offset + (std::string(section) == "standard" ? 13 : 5) * 4], &bad, 4);
+    const int index = std::string(section) == "coarse" ? 5 : std::string(section) == "fine" ? 6 : 3;
+    Rechecksum(&crafted, index);
+    WriteBytes(scratch.File("crafted.sopedb"), crafted);
+    const std::string error = OpenError(scratch.File("crafted.sopedb"));
+    EXPECT_NE(error.find("corrupted"), std::string::npos) << error;
+    EXPECT_TRUE(error.find("NaN") != std::string::npos ||
+                error.find("not positive") != std::string::npos)
+        << error;
+  }
+}
+
+// Issue 13: a FIFO named as the database blocked in open(2).
+TEST(Database, RefusesAFifoWithoutBlocking) {
+  testing::ScratchDir scratch;
+  const std::string fifo = scratch.File("db.sopedb");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  const std::string error = OpenError(fifo);
+  EXPECT_NE(error.find("not a regular file"), std::string::npos) << error;
 }
 
 }  // namespace

@@ -5,6 +5,8 @@
 #include <limits>
 #include <memory>
 
+#include <spdlog/spdlog.h>
+
 #include "core/error.h"
 #include "recogniser/cloud_filters.h"
 
@@ -17,6 +19,13 @@ bool IsFinite(const Eigen::Vector3f& p) {
 
 // Largest |coordinate| / leaf the packed voxel keys hold (cloud_filters.cc).
 constexpr double kMaxLeavesFromOrigin = double(1 << 20) - 2.0;
+
+// Work bound: the neighbour statistics, normals and descriptors after the voxel grid cost
+// more than linearly on clouds that do not thin (uniform noise fills a volume, not a
+// surface). A view of an object is a few thousand voxels and a whole table-top scene at the
+// default 4 mm leaf ≈ 60k; beyond this the leaf is coarsened until the grid holds at most
+// this many points, so the work stays ≈ linear in the input and bounded.
+constexpr size_t kMaxVoxelPoints = 100000;
 
 }  // namespace
 
@@ -105,6 +114,31 @@ PreprocessedCloud Preprocess(const PointCloud& cloud, const PreprocessOptions& o
   if (options.voxel_leaf > 0.0) {
     points =
         internal::VoxelGridCentroids(points, static_cast<float>(options.voxel_leaf), &voxel_counts);
+  }
+  if (points.size() > kMaxVoxelPoints) {
+    // Coarsen from the in-range points (so the counts stay per raw point): the number of
+    // voxels falls at least as the square of the leaf on a surface, faster in a volume.
+    const size_t first_voxels = points.size();
+    std::vector<Eigen::Vector3f> in_range;
+    if (options.voxel_leaf > 0.0) {
+      in_range.reserve(static_cast<size_t>(summary.in_range_points));
+      for (const Eigen::Vector3f& p : cloud.points) {
+        if (!IsFinite(p)) continue;
+        const double sq = p.cast<double>().squaredNorm();
+        if (sq >= min_sq && sq <= max_sq) in_range.push_back(p);
+      }
+    } else {
+      in_range.swap(points);
+    }
+    double leaf = options.voxel_leaf > 0.0 ? options.voxel_leaf : options.max_range / 1000.0;
+    size_t voxels = options.voxel_leaf > 0.0 ? points.size() : in_range.size();
+    while (voxels > kMaxVoxelPoints) {
+      leaf *= std::max(1.25, 1.05 * std::sqrt(static_cast<double>(voxels) / kMaxVoxelPoints));
+      points = internal::VoxelGridCentroids(in_range, static_cast<float>(leaf), &voxel_counts);
+      voxels = points.size();
+    }
+    spdlog::debug("Preprocess: {} points at the {} m leaf exceed {}; a {:.4f} m leaf gives {}",
+                  first_voxels, options.voxel_leaf, kMaxVoxelPoints, leaf, voxels);
   }
   summary.voxel_points = static_cast<int64_t>(points.size());
 

@@ -570,5 +570,36 @@ TEST(Preprocess, IsDeterministicAndIgnoresInputNormalsAndColours) {
   EXPECT_FALSE(b.cloud.HasColors());
 }
 
+// Issue 13: 2,000,000 uniform random points in a cube (a volume: the 4 mm voxel grid keeps
+// nearly all of them) made the neighbour stages super-linear (> 120 s). The voxel stage now
+// hands on at most 100,000 points, coarsening its leaf; the result is still a valid,
+// normalised cloud. A surface that thins below the bound is untouched (same voxel count as
+// the plain grid).
+TEST(Preprocess, BoundsTheWorkOnCloudsThatDoNotThin) {
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<float> unit(0.0f, 1.0f);
+  PointCloud noise;
+  noise.points.reserve(2000000);
+  for (int i = 0; i < 2000000; ++i) {
+    noise.points.emplace_back(unit(rng) - 0.5f, unit(rng) - 0.5f, 0.5f + unit(rng));
+  }
+  PreprocessOptions options;
+  const PreprocessedCloud out = Preprocess(noise, options);
+  EXPECT_GT(out.summary.in_range_points, 1500000);
+  EXPECT_LE(out.summary.voxel_points, 100000);
+  EXPECT_GT(out.summary.voxel_points, 10000);  // coarsened, not emptied
+  EXPECT_GE(out.summary.final_points, options.min_points);
+  EXPECT_GT(out.radius, 0.1f);
+
+  PointCloud plane;
+  for (int i = 0; i < 300; ++i) {
+    for (int j = 0; j < 300; ++j) plane.points.emplace_back(0.001f * i - 0.15f, 0.001f * j - 0.15f, 0.6f);
+  }
+  const PreprocessedCloud thin = Preprocess(plane, options);
+  const std::vector<Eigen::Vector3f> grid =
+      internal::VoxelGridCentroids(plane.points, static_cast<float>(options.voxel_leaf));
+  EXPECT_EQ(thin.summary.voxel_points, static_cast<int64_t>(grid.size()));
+}
+
 }  // namespace
 }  // namespace sope

@@ -69,7 +69,10 @@ bool Sees(const CameraModel& device, const Rigid3d& device_from_board,
 }  // namespace internal
 
 void BoardSequenceOptions::Check() const {
-  SOPE_CHECK(num_views >= 1, "board sequence: num_views must be >= 1, got {}", num_views);
+  // A calibration uses 10–50 views; each is a whole frame set on disk.
+  constexpr int kMaxViews = 1000;
+  SOPE_CHECK(num_views >= 1 && num_views <= kMaxViews,
+             "board sequence: num_views must be in [1, {}], got {}", kMaxViews, num_views);
   SOPE_CHECK(min_distance > 0 && max_distance >= min_distance,
              "board sequence: distance range [{}, {}] m is invalid", min_distance, max_distance);
   SOPE_CHECK(min_tilt >= 0 && max_tilt >= min_tilt && max_tilt < M_PI / 2,
@@ -198,7 +201,7 @@ std::string BoardViewName(int index) { return fmt::format("view_{:03d}", index);
 std::vector<Rigid3d> WriteBoardSequence(const std::string& directory, VirtualRig& rig,
                                         const BoardSpec& board, const BoardSequenceOptions& options,
                                         const std::function<void(int, int)>& progress) {
-  StagedDirectory staged(directory);
+  StagedDirectory staged(directory, internal::kPosesFile);
   const std::string& out = staged.path();
   WriteRigCalibration(JoinPath(out, internal::kTrueCalibrationFile), rig.calibration());
   if (progress) progress(0, options.num_views);

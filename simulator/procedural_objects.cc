@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <filesystem>
 #include <limits>
 #include <map>
 #include <utility>
@@ -698,23 +699,58 @@ TriangleMesh MakeObject(ObjectClass cls, uint64_t seed, const ProceduralObjectOp
   return mesh;
 }
 
+namespace {
+
+// True when `dir` holds only what WriteProceduralModels writes (<class>/<class>_<k>.obj):
+// an earlier models directory, safe to replace.
+bool IsProceduralModelsDirectory(const std::string& dir) {
+  namespace fs = std::filesystem;
+  std::error_code error;
+  for (const fs::directory_entry& entry : fs::directory_iterator(dir, error)) {
+    const std::string name = entry.path().filename().string();
+    if (!entry.is_directory() ||
+        std::none_of(kAllClasses.begin(), kAllClasses.end(),
+                     [&](ObjectClass cls) { return ToString(cls) == name; })) {
+      return false;
+    }
+    for (const fs::directory_entry& file : fs::directory_iterator(entry.path(), error)) {
+      const std::string stem = file.path().stem().string();
+      if (!file.is_regular_file() || file.path().extension() != ".obj" ||
+          stem.rfind(name + "_", 0) != 0 || stem.size() == name.size() + 1 ||
+          stem.find_first_not_of("0123456789", name.size() + 1) != std::string::npos) {
+        return false;
+      }
+    }
+  }
+  return !error;
+}
+
+}  // namespace
+
 std::vector<std::string> WriteProceduralModels(const std::string& dir, int instances_per_class,
                                                uint64_t seed,
                                                const ProceduralObjectOptions& options) {
   SOPE_CHECK(!dir.empty(), "WriteProceduralModels: empty directory name");
-  SOPE_CHECK(instances_per_class >= 1,
-             "WriteProceduralModels: instances_per_class must be >= 1, got {}",
+  SOPE_CHECK(instances_per_class >= 1 && instances_per_class <= kMaxInstancesPerClass,
+             "WriteProceduralModels: instances per class must be in [1, {}], got {}",
+             kMaxInstancesPerClass, instances_per_class);
+  SOPE_CHECK(seed <= std::numeric_limits<uint64_t>::max() - instances_per_class,
+             "WriteProceduralModels: seed {} + {} instances overflows", seed,
              instances_per_class);
   options.Check();
+  // Staged as a whole: a full disk or a signal leaves no partial models directory.
+  StagedDirectory staged(dir, &IsProceduralModelsDirectory);
   std::vector<std::string> paths;
   for (ObjectClass cls : kAllClasses) {
     const std::string name = ToString(cls);
     for (int k = 0; k < instances_per_class; ++k) {
-      const std::string path = JoinPath(JoinPath(dir, name), fmt::format("{}_{}.obj", name, k));
-      WriteMesh(path, MakeObject(cls, seed + static_cast<uint64_t>(k), options));
-      paths.push_back(path);
+      const std::string file = JoinPath(name, fmt::format("{}_{}.obj", name, k));
+      WriteMesh(JoinPath(staged.path(), file),
+                MakeObject(cls, seed + static_cast<uint64_t>(k), options));
+      paths.push_back(JoinPath(dir, file));
     }
   }
+  staged.Commit();
   return paths;
 }
 

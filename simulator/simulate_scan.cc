@@ -37,7 +37,7 @@ SimulatedScan SimulateScan(VirtualRig& rig, const Scene& scene,
 }
 
 void WriteSimulatedScan(const std::string& directory, const SimulatedScan& scan) {
-  StagedDirectory staged(directory);
+  StagedDirectory staged(directory, FrameSetManifest::kFileName);
   const std::string& out = staged.path();
   WriteFrameSetFiles(out, scan.frames);
   WriteRigCalibration(JoinPath(out, kCalibrationFile), scan.calibration);

@@ -474,10 +474,17 @@ void SensorOptions::Check() const {
              "SensorOptions: exposure must be > 0, got {}", exposure);
   SOPE_CHECK(std::isfinite(gamma) && gamma > 0.0, "SensorOptions: gamma must be > 0, got {}",
              gamma);
-  SOPE_CHECK(std::isfinite(defocus_sigma_px) && defocus_sigma_px >= 0.0,
-             "SensorOptions: defocus_sigma_px must be >= 0, got {}", defocus_sigma_px);
-  SOPE_CHECK(std::isfinite(camera_blur_sigma_px) && camera_blur_sigma_px >= 0.0,
-             "SensorOptions: camera_blur_sigma_px must be >= 0, got {}", camera_blur_sigma_px);
+  // Blur work grows with σ (kernel ≈ 6σ wide per pass); beyond 25 px every stripe finer
+  // than ≈ 50 px is washed out anyway.
+  constexpr double kMaxBlurSigmaPx = 25.0;
+  SOPE_CHECK(std::isfinite(defocus_sigma_px) && defocus_sigma_px >= 0.0 &&
+                 defocus_sigma_px <= kMaxBlurSigmaPx,
+             "SensorOptions: defocus_sigma_px must be in [0, {}] px, got {}", kMaxBlurSigmaPx,
+             defocus_sigma_px);
+  SOPE_CHECK(std::isfinite(camera_blur_sigma_px) && camera_blur_sigma_px >= 0.0 &&
+                 camera_blur_sigma_px <= kMaxBlurSigmaPx,
+             "SensorOptions: camera_blur_sigma_px must be in [0, {}] px, got {}",
+             kMaxBlurSigmaPx, camera_blur_sigma_px);
   SOPE_CHECK(std::isfinite(read_noise) && read_noise >= 0.0,
              "SensorOptions: read_noise must be >= 0, got {}", read_noise);
   SOPE_CHECK(std::isfinite(shot_noise) && shot_noise >= 0.0,

@@ -1,10 +1,15 @@
 // The `sope` binary as a user runs it: outputs on good input, and on bad input exactly
 // one clear line on stderr, a non-zero exit and no output file.
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
+#include <unistd.h>
 
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -174,6 +179,284 @@ TEST_F(Cli, CalibrationThatDoesNotFitTheFrames) {
                           local_),
                      "scan", "broken.yaml");
   EXPECT_FALSE(fs::exists(local_.File("c.ply")));
+}
+
+// ---- Issue 13: hostile input and signals -------------------------------------------------
+
+// Hidden staging leftovers (".name.tmp-XXXXXX") or any entry but the run's captured output.
+std::vector<std::string> EntriesBesidesCapture(const std::string& directory) {
+  std::vector<std::string> entries;
+  for (const auto& entry : fs::directory_iterator(directory)) {
+    const std::string name = entry.path().filename().string();
+    if (name != ".stdout" && name != ".stderr") entries.push_back(name);
+  }
+  return entries;
+}
+
+TEST_F(Cli, UsageErrorsAreOneLine) {
+  ExpectOneLineError(Sope("scan --frames x --out y --no-such-flag", local_), "scan",
+                     "--no-such-flag");
+  ExpectOneLineError(Sope("simulate --mesh", local_), "simulate", "--mesh");
+  ExpectOneLineError(Sope("decode --frames " + scratch_->File("scan"), local_), "decode",
+                     "--out is required");
+  ExpectOneLineError(Sope("build-db --models m --out d.sopedb --threads four", local_),
+                     "build-db", "four");
+  ExpectOneLineError(Sope("scan -q --frames x --out y --bogus", local_), "scan", "--bogus");
+}
+
+TEST_F(Cli, ImpossibleValuesAndCountsAreRefused) {
+  const std::string rig = " --rig " + scratch_->File("rig.yaml");
+  const std::string out = " --out " + local_.File("o");
+  const std::string sphere = "simulate --mesh builtin:sphere" + rig;
+  struct Case {
+    std::string command, arguments, needle;
+  };
+  const std::vector<Case> cases = {
+      {"simulate", sphere + " --object-pose 0,0,0,0,0,0.6,", "stray comma"},
+      {"simulate", sphere + " --object-pose ,0,0,0,0,0.6", "stray comma"},
+      {"simulate", sphere + " --object-size 0", "--object-size"},
+      {"simulate", sphere + " --object-size nan", "--object-size"},
+      {"simulate", sphere + " --backdrop nan", "--backdrop"},
+      {"simulate", sphere + " --backdrop -1", "--backdrop"},
+      {"simulate", sphere + " --object-pose 0,0,0,0,0,1e300", "beyond 100 m"},
+      {"simulate", sphere + " --defocus 1e5", "defocus_sigma_px must be in [0, 25]"},
+      {"simulate", sphere + " --defocus 1e9", "defocus_sigma_px must be in [0, 25]"},
+      {"simulate", "simulate --board 5x4x0.04 --views 1000000" + rig, "num_views must be in [1, 1000]"},
+      {"objects", "objects --seed -1", "--seed: must be ≥ 0"},
+      {"objects", "objects --instances 2000000000", "[1, 1000]"},
+      {"build-db", "build-db --models m --views 100000", "[1, 2000]"},
+      {"build-db", "build-db --models m --threads 100000", "[0, 256]"},
+      {"patterns", "patterns --projector 32768x32768", "1..16384"},
+      {"patterns", "patterns --projector 16384x16384", "limit"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.arguments);
+    ExpectOneLineError(Sope(c.arguments + out, local_), c.command, c.needle);
+    EXPECT_FALSE(fs::exists(local_.File("o")));
+    EXPECT_EQ(EntriesBesidesCapture(local_.path()), std::vector<std::string>());
+  }
+}
+
+TEST_F(Cli, SimulateNeverDeletesAUsersFiles) {
+  const std::string dir = local_.File("d");
+  fs::create_directories(dir);
+  WriteFileAtomic(dir + "/notes.txt", "my notes");
+  const std::string sphere =
+      "simulate --mesh builtin:sphere --rig " + scratch_->File("rig.yaml") + " --supersample 1";
+  ExpectOneLineError(Sope(sphere + " --out " + dir, local_), "simulate", "did not write");
+  EXPECT_EQ(ReadFileToString(dir + "/notes.txt", "test"), "my notes");
+  // An earlier frame set is sope's own: replaced.
+  const SopeRun first = Sope(sphere + " --out " + local_.File("again"), local_);
+  ASSERT_EQ(first.exit_code, 0) << first.err;
+  const SopeRun second = Sope(sphere + " --out " + local_.File("again"), local_);
+  EXPECT_EQ(second.exit_code, 0) << second.err;
+  EXPECT_TRUE(fs::exists(local_.File("again/frames.json")));
+  // decode and objects refuse the user's directory too.
+  ExpectOneLineError(Sope("decode --frames " + scratch_->File("scan") + " --out " + dir, local_),
+                     "decode", "did not write");
+  ExpectOneLineError(Sope("objects --instances 1 --out " + dir, local_), "objects",
+                     "did not write");
+  EXPECT_EQ(ReadFileToString(dir + "/notes.txt", "test"), "my notes");
+}
+
+TEST_F(Cli, ScenesWithNothingLitAreErrors) {
+  const std::string base = "simulate --rig " + scratch_->File("rig.yaml") + " --supersample 1";
+  const std::string out = " --out " + local_.File("o");
+  ExpectOneLineError(Sope(base + " --mesh builtin:sphere --object-pose 0,0,0,0,0,-0.6" + out,
+                          local_),
+                     "simulate", "no camera pixel");
+  ExpectOneLineError(Sope(base + " --mesh builtin:sphere --object-pose 0,0,0,0,0,0" + out, local_),
+                     "simulate", "no camera pixel");
+  WriteFileAtomic(local_.File("huge.obj"),
+                  "v -3e38 -3e38 -3e38\nv 3e38 -3e38 -3e38\nv 3e38 3e38 3e38\nf 1 2 3\n");
+  ExpectOneLineError(Sope(base + " --mesh " + local_.File("huge.obj") + out, local_), "simulate",
+                     "huge.obj");
+  // One triangle seen edge-on.
+  WriteFileAtomic(local_.File("tri.obj"), "v 0 0 0\nv 0.1 0 0\nv 0 0 0.1\nf 1 2 3\n");
+  ExpectOneLineError(Sope(base + " --mesh " + local_.File("tri.obj") +
+                              " --object-pose 0,0,0,0,0,0.6 --object-size 0.1" + out,
+                          local_),
+                     "simulate", "no camera pixel");
+  RigCalibration tiny = SmallRig();
+  tiny.camera.width = tiny.camera.height = 1;  // its one pixel looks ≈ 28° off-axis
+  WriteRigCalibration(local_.File("tiny.yaml"), tiny);
+  ExpectOneLineError(Sope("simulate --mesh builtin:sphere --rig " + local_.File("tiny.yaml") + out,
+                          local_),
+                     "simulate", "no camera pixel");
+  EXPECT_FALSE(fs::exists(local_.File("o")));
+  // Asked for, the empty frame set is written.
+  const SopeRun allowed =
+      Sope(base + " --mesh builtin:sphere --object-pose 0,0,0,0,0,-0.6 --allow-empty" + out,
+           local_);
+  EXPECT_EQ(allowed.exit_code, 0) << allowed.err;
+  EXPECT_TRUE(fs::exists(local_.File("o/frames.json")));
+}
+
+TEST_F(Cli, HugeCountsInFilesAreClearErrors) {
+  const std::string base = "simulate --rig " + scratch_->File("rig.yaml") + " --out " +
+                           local_.File("o") + " --mesh ";
+  WriteFileAtomic(local_.File("huge.ply"),
+                  "ply\nformat ascii 1.0\nelement vertex 9223372036854775807\n"
+                  "property float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n");
+  ExpectOneLineError(Sope(base + local_.File("huge.ply"), local_), "simulate",
+                     "9223372036854775807 rows");
+  WriteFileAtomic(local_.File("huge.off"), "OFF\n1000000000000 1 0\n");
+  ExpectOneLineError(Sope(base + local_.File("huge.off"), local_), "simulate",
+                     "1000000000000 vertices");
+  RigCalibration big = SmallRig();
+  WriteRigCalibration(local_.File("big.yaml"), big);
+  std::string text = ReadFileToString(local_.File("big.yaml"), "test");
+  text.replace(text.find("camera_width: 320"), 17, "camera_width: 999999");
+  text.replace(text.find("camera_height: 240"), 18, "camera_height: 999999");
+  WriteFileAtomic(local_.File("big.yaml"), text);
+  ExpectOneLineError(Sope("simulate --mesh builtin:sphere --rig " + local_.File("big.yaml") +
+                              " --out " + local_.File("o"),
+                          local_),
+                     "simulate", "beyond the limit");
+  EXPECT_FALSE(fs::exists(local_.File("o")));
+}
+
+TEST_F(Cli, SilentlyWrongFilesAreRefused) {
+  std::string scan = CopyOfScan();
+  nlohmann::json manifest = nlohmann::json::parse(ReadFileToString(scan + "/frames.json", "t"));
+  for (const nlohmann::json& width : {nlohmann::json(4294967616ull), nlohmann::json(320.7),
+                                      nlohmann::json(1e30)}) {
+    manifest["camera"]["width"] = width;
+    WriteFileAtomic(scan + "/frames.json", manifest.dump());
+    ExpectOneLineError(Sope("scan --frames " + scan + " --out " + local_.File("c.ply"), local_),
+                       "scan", "'width'");
+  }
+  std::string yaml = ReadFileToString(scratch_->File("rig.yaml"), "test");
+  // The camera matrix's bottom row 0 0 1 → 5 7 0.
+  const size_t matrix = yaml.find("camera_matrix");
+  const size_t data = yaml.find("data", matrix);
+  const size_t close = yaml.find(']', data);
+  const size_t third_comma = [&] {
+    size_t at = close;
+    for (int k = 0; k < 3; ++k) at = yaml.rfind(',', at - 1);
+    return at;
+  }();
+  yaml.replace(third_comma + 1, close - third_comma - 1, " 5., 7., 0.");
+  WriteFileAtomic(local_.File("row.yaml"), yaml);
+  ExpectOneLineError(Sope("scan --frames " + scratch_->File("scan") + " --calibration " +
+                              local_.File("row.yaml") + " --out " + local_.File("c.ply"),
+                          local_),
+                     "scan", "bottom row must be 0 0 1");
+  EXPECT_FALSE(fs::exists(local_.File("c.ply")));
+}
+
+TEST_F(Cli, CorruptPngGivesOnlySopesLine) {
+  const std::string scan = CopyOfScan();
+  const std::string png = ReadFileToString(scan + "/frame_07.png", "test");
+  WriteFileAtomic(scan + "/frame_07.png", png.substr(0, png.size() / 2));
+  for (const char* quiet : {"", " -q"}) {
+    SCOPED_TRACE(quiet);
+    const SopeRun run =
+        Sope("decode" + std::string(quiet) + " --frames " + scan + " --out " + local_.File("m"),
+             local_);
+    ExpectOneLineError(run, "decode", "frame_07.png");
+    EXPECT_EQ(run.err.find("libpng"), std::string::npos) << run.err;
+  }
+  EXPECT_FALSE(fs::exists(local_.File("m")));
+}
+
+TEST_F(Cli, FifoAsAnInputIsRefusedWithoutBlocking) {
+  const std::string fifo = local_.File("fifo");
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  // `timeout` only guards the suite against the old hang; the run itself is immediate.
+  const std::string guard = "timeout -s KILL 120";
+  ExpectOneLineError(testing::RunCommand(SOPE_BINARY, "recognise --db " + fifo + " --cloud " +
+                                                          fifo, local_, guard),
+                     "recognise", "not a regular file");
+  ExpectOneLineError(testing::RunCommand(SOPE_BINARY, "simulate --mesh builtin:sphere --rig " +
+                                                          fifo + " --out " + local_.File("o"),
+                                         local_, guard),
+                     "simulate", "not a regular file");
+}
+
+// A full disk, imitated by RLIMIT_FSIZE (ulimit -f, SIGXFSZ ignored so that write(2) fails
+// with EFBIG): the map directory, the models directory and every temporary are gone.
+TEST_F(Cli, FullDiskLeavesNothingPartial) {
+  const std::string full = "trap '' XFSZ; ulimit -f 16;";
+  SopeRun run = testing::RunCommand(
+      SOPE_BINARY, "decode --frames " + scratch_->File("scan") + " --out " + local_.File("maps"),
+      local_, full);
+  ExpectOneLineError(run, "decode", "maps");
+  run = testing::RunCommand(SOPE_BINARY, "objects --instances 2 --out " + local_.File("models"),
+                            local_, full);
+  ExpectOneLineError(run, "objects", "File too large");
+  run = testing::RunCommand(SOPE_BINARY,
+                            "simulate --mesh builtin:sphere --rig " + scratch_->File("rig.yaml") +
+                                " --supersample 1 --out " + local_.File("sim"),
+                            local_, full);
+  ExpectOneLineError(run, "simulate", "File too large");
+  EXPECT_EQ(EntriesBesidesCapture(local_.path()), std::vector<std::string>());
+}
+
+// SIGTERM / SIGINT while a staged directory is being filled: one line, exit 128 + signal,
+// nothing left (issue 13 item 4). The signal is sent once the staging directory exists.
+struct Interrupted {
+  int exit_code = -1;
+  std::string err;
+  bool saw_staging = false;
+};
+
+Interrupted InterruptWhileStaging(const std::vector<std::string>& arguments,
+                                  const std::string& directory, const std::string& staged_name,
+                                  int signal_number) {
+  Interrupted result;
+  const std::string err_file = JoinPath(directory, ".stderr");
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    const int fd = ::open(err_file.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    ::dup2(fd, STDERR_FILENO);
+    std::vector<char*> argv = {const_cast<char*>(SOPE_BINARY)};
+    for (const std::string& a : arguments) argv.push_back(const_cast<char*>(a.c_str()));
+    argv.push_back(nullptr);
+    ::execv(SOPE_BINARY, argv.data());
+    ::_exit(127);
+  }
+  const std::string prefix = "." + staged_name + ".tmp-";
+  int status = 0;
+  for (int i = 0; i < 600000 && !result.saw_staging; ++i) {
+    for (const auto& entry : fs::directory_iterator(directory)) {
+      if (entry.path().filename().string().rfind(prefix, 0) == 0) result.saw_staging = true;
+    }
+    if (::waitpid(pid, &status, WNOHANG) == pid) return result;  // ended before staging
+    if (!result.saw_staging) ::usleep(1000);
+  }
+  ::kill(pid, signal_number);
+  ::waitpid(pid, &status, 0);
+  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  result.err = ReadFileToString(err_file, "stderr");
+  return result;
+}
+
+TEST_F(Cli, SignalsRemoveStagedOutputs) {
+  struct Case {
+    std::vector<std::string> arguments;
+    std::string command, staged;
+    int signal_number;
+  };
+  const std::string rig = scratch_->File("rig.yaml");
+  const std::vector<Case> cases = {
+      {{"objects", "--instances", "40", "--out", local_.File("models")}, "objects", "models",
+       SIGTERM},
+      {{"objects", "--instances", "40", "--out", local_.File("models")}, "objects", "models",
+       SIGINT},
+      {{"simulate", "--board", "5x4x0.04", "--views", "20", "--rig", rig, "--out",
+        local_.File("seq")},
+       "simulate", "seq", SIGTERM},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.command + " " + std::to_string(c.signal_number));
+    const Interrupted run = InterruptWhileStaging(c.arguments, local_.path(), c.staged,
+                                                  c.signal_number);
+    ASSERT_TRUE(run.saw_staging) << "the run ended before it staged anything";
+    EXPECT_EQ(run.exit_code, 128 + c.signal_number) << run.err;
+    EXPECT_EQ(run.err, "sope " + c.command + ": error: interrupted\n");
+    EXPECT_EQ(EntriesBesidesCapture(local_.path()), std::vector<std::string>());
+  }
 }
 
 // `sope objects --contact-sheet DIR`: one PNG per class plus an overview, each a real

@@ -15,6 +15,7 @@
 #include "core/camera_model.h"
 #include "core/file_util.h"
 #include "core/point_cloud.h"
+#include "recogniser/database.h"
 #include "recogniser/viewpoints.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/virtual_rig.h"
@@ -202,6 +203,43 @@ TEST_F(RecogniseCli, BadBuildInputsGiveOneErrorLine) {
   EXPECT_EQ(warnings, 2) << run.err;
   EXPECT_NE(run.err.find("no database view could be built"), std::string::npos) << run.err;
   EXPECT_FALSE(fs::exists(local_.File("x.sopedb")));
+}
+
+// Issue 13: an empty PCD, "hello world" or only "VERSION 0.7" crashed pcl::PCDReader.
+TEST_F(RecogniseCli, MalformedPcdHeadersGiveOneErrorLine) {
+  ASSERT_EQ(build_->exit_code, 0) << build_->err;
+  const std::string base = "recognise --db " + db() + " --cloud ";
+  for (const std::string& text : {std::string(""), std::string("hello world"),
+                                  std::string("VERSION 0.7\n")}) {
+    SCOPED_TRACE(text);
+    WriteFileAtomic(local_.File("bad.pcd"), text);
+    const SopeRun run = Sope(base + local_.File("bad.pcd"), local_);
+    EXPECT_NE(run.exit_code, -1) << "killed by a signal";
+    ExpectOneLineError(run, "recognise", "bad.pcd");
+  }
+  // The good PCD still recognises.
+  EXPECT_EQ(Sope(base + scratch_->File("query.pcd"), local_).exit_code, 0);
+}
+
+// Issue 13: a mesh claiming more elements than its file holds failed the whole build with
+// std::bad_alloc; now it is reported and skipped like any unreadable mesh.
+TEST_F(RecogniseCli, BuildDbSkipsMeshesWithImpossibleCounts) {
+  const std::string models = local_.File("models");
+  WriteMesh(models + "/mug/mug_a.obj", MakeObject(ObjectClass::kMug, 1));
+  WriteFileAtomic(models + "/bowl/huge.ply",
+                  "ply\nformat ascii 1.0\nelement vertex 9223372036854775807\n"
+                  "property float x\nproperty float y\nproperty float z\nend_header\n0 0 0\n");
+  WriteFileAtomic(models + "/bowl/huge.off", "OFF\n1000000000000 1 0\n0 0 0\n");
+  const SopeRun run = Sope("build-db --views 12 --models " + models + " --out " +
+                               local_.File("x.sopedb"),
+                           local_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_NE(run.err.find("skipping model " + models + "/bowl/huge.ply"), std::string::npos)
+      << run.err;
+  EXPECT_NE(run.err.find("skipping model " + models + "/bowl/huge.off"), std::string::npos)
+      << run.err;
+  EXPECT_EQ(run.err.find("internal error"), std::string::npos) << run.err;
+  EXPECT_EQ(Database::Open(local_.File("x.sopedb"))->models().size(), 1u);
 }
 
 }  // namespace

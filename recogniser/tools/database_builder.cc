@@ -10,6 +10,7 @@
 #include <mutex>
 #include <optional>
 #include <random>
+#include <system_error>
 #include <thread>
 
 #include <fmt/format.h>
@@ -386,7 +387,17 @@ DescribedViews RenderAndDescribe(const std::vector<ModelSource>& sources,
       ++done;
     }
   };
-  for (int t = 0; t < threads; ++t) workers.emplace_back(worker);
+  for (int t = 0; t < threads; ++t) {
+    try {
+      workers.emplace_back(worker);
+    } catch (const std::system_error& e) {
+      // Out of threads (a process limit): stop the ones started, one clear error.
+      queue.Close();
+      for (std::thread& started : workers) started.join();
+      SOPE_THROW("BuildDatabase: cannot start worker thread {} of {} ({}); use fewer threads",
+                 t + 1, threads, e.what());
+    }
+  }
 
   double render_seconds = 0.0;
   try {
