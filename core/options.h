@@ -10,7 +10,7 @@
 //         ...};
 //     return fields;
 //   }
-//   void CoarseOptions::Check() const { CheckFields(*this, Fields(), "recognition: coarse"); }
+//   void CoarseOptions::Check() const { CheckFields(*this, Fields(), "recognition: coarse."); }
 //
 // Nested structs: AppendNested(&fields, &Outer::inner, "inner", Inner::Fields()) gives the
 // inner fields the names "inner.<name>" (JSON: an object "inner" holding them).
@@ -161,15 +161,15 @@ void AppendNested(std::vector<OptionField<Outer>>* fields, Inner Outer::*member,
   }
 }
 
-// Throws sope::Error "<what>: <name> must be <range>, got <value>" for the first number
-// field outside its range.
+// Throws sope::Error "<prefix><name> must be <range>, got <value>" for the first number
+// field outside its range (prefix e.g. "recognition: coarse.").
 template <class S>
 void CheckFields(const S& options, const std::vector<OptionField<S>>& fields,
-                 const std::string& what) {
+                 const std::string& prefix) {
   for (const OptionField<S>& field : fields) {
     if (!field.IsNumber()) continue;
     const double value = field.Number(options);
-    SOPE_CHECK(field.InRange(value), "{}: {} must be {}, got {}", what, field.name,
+    SOPE_CHECK(field.InRange(value), "{}{} must be {}, got {}", prefix, field.name,
                field.RangeText(), value);
   }
 }
