@@ -8,6 +8,7 @@
 #include "app/pipeline_flags.h"
 #include "core/error.h"
 #include "core/mesh.h"
+#include "core/object_size.h"
 #include "core/rig_calibration.h"
 #include "simulator/board_sequence.h"
 #include "simulator/scene_builder.h"
@@ -17,10 +18,9 @@
 namespace sope {
 namespace {
 
-// Meshes outside this diagonal range (metres) are in other units: rescale them.
-constexpr double kMinPlausibleSize = 0.02;
-constexpr double kMaxPlausibleSize = 1.5;
-constexpr double kDefaultObjectSize = 0.25;
+// Meshes outside the plausible diagonal range (core/object_size.h, as build-db) are in
+// other units: rescale them.
+constexpr double kDefaultObjectSize = kDefaultObjectDiagonal;
 
 }  // namespace
 
@@ -105,7 +105,7 @@ int RunSimulate(int argc, char** argv) {
     placement.size = size;
   } else {
     const double diagonal = mesh.BoundingDiagonal();
-    if (diagonal < kMinPlausibleSize || diagonal > kMaxPlausibleSize) {
+    if (!IsPlausibleDiagonal(diagonal)) {
       placement.size = kDefaultObjectSize;
       spdlog::info("mesh diagonal is {:.3g} units: scaling it to {} m (use --object-size)",
                    diagonal, kDefaultObjectSize);

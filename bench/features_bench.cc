@@ -23,6 +23,7 @@
 
 #include "core/camera_model.h"
 #include "core/rigid3d.h"
+#include "core/units.h"
 #include "recogniser/features.h"
 #include "recogniser/preprocess.h"
 #include "simulator/procedural_objects.h"
@@ -31,7 +32,6 @@
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 const PointCloud& BottleView() {
   static const PointCloud cloud = [] {
