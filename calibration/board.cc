@@ -153,7 +153,8 @@ std::optional<std::vector<Eigen::Vector2d>> DetectBoardCorners(
   options.Check();
   SOPE_CHECK(!image.empty() && image.channels() == 1 &&
                  (image.depth() == CV_8U || image.depth() == CV_16U),
-             "DetectBoardCorners: expected a CV_8UC1 or CV_16UC1 image, got type {}", image.type());
+             "DetectBoardCorners: expected a CV_8UC1 or CV_16UC1 image, got {}",
+             cv::typeToString(image.type()));
   cv::Mat grey = image;
   if (image.depth() == CV_16U) image.convertTo(grey, CV_8U, 1.0 / 257.0);
   const cv::Size pattern_size(board.cols, board.rows);

@@ -9,6 +9,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -32,7 +33,8 @@ TEST(BoardSpec, ParsesInnerCornersAndSquareSize) {
 TEST(BoardSpec, RejectsMalformedText) {
   for (const char* text : {"", "9x6", "9x6x", "axbx0.1", "9x6x0.02m", "9x6x-0.02", "1x6x0.02",
                            "9x6x0", "9x6x0.02x1"}) {
-    EXPECT_THROW(BoardSpecFromString(text), Error) << text;
+    EXPECT_THROW_WITH_MESSAGE(BoardSpecFromString(text), Error,
+                              std::string("board '") + text + "'");
   }
   try {
     BoardSpecFromString("9x6");
@@ -45,10 +47,10 @@ TEST(CornerDetector, NamesRoundTrip) {
   for (CornerDetector detector : {CornerDetector::kSectorBased, CornerDetector::kClassic}) {
     EXPECT_EQ(CornerDetectorFromString(ToString(detector)), detector);
   }
-  EXPECT_THROW(CornerDetectorFromString("harris"), Error);
+  EXPECT_THROW_WITH_MESSAGE(CornerDetectorFromString("harris"), Error, "'harris'");
   BoardDetectionOptions options;
   options.subpix_window_fraction = 0.7;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "subpix_window_fraction", "got 0.7");
 }
 
 // A checkerboard image: the board (black square diagonally outside corner 0, white margin
@@ -154,7 +156,8 @@ TEST(DetectBoardCorners, SixteenBitImagesAndAbsentBoards) {
   EXPECT_FALSE(DetectBoardCorners(synthetic.image, BoardSpecFromString("8x4x0.03")));
   EXPECT_FALSE(DetectBoardCorners(synthetic.image, BoardSpecFromString("6x4x0.03")));
   EXPECT_FALSE(DetectBoardCorners(cv::Mat(480, 640, CV_8UC1, cv::Scalar(90)), board));
-  EXPECT_THROW(DetectBoardCorners(cv::Mat(480, 640, CV_32FC1), board), Error);
+  EXPECT_THROW_WITH_MESSAGE(DetectBoardCorners(cv::Mat(480, 640, CV_32FC1), board), Error,
+                            "got CV_32FC1");
 }
 
 }  // namespace

@@ -14,6 +14,7 @@
 #include "core/error.h"
 #include "core/rig_calibration.h"
 #include "projector/patterns.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -189,17 +190,19 @@ TEST(LocalHomography, NeedsBothAxesAndMatchingCornerCounts) {
     ASSERT_TRUE(found[k].has_value()) << k;
     EXPECT_LT((*found[k] - ExactProjector(rig, maps, corners[k])).norm(), 0.08) << k;
   }
-  EXPECT_THROW(FindProjectorCorners(maps.map, board, {corners[0]}), Error);
+  EXPECT_THROW_WITH_MESSAGE(FindProjectorCorners(maps.map, board, {corners[0]}), Error,
+                            "1 camera corners", "3x2 board");
   CorrespondenceMap x_only = maps.map;
   x_only.proj_y = cv::Mat();
-  EXPECT_THROW(FindProjectorCorners(x_only, board, corners), Error);
+  EXPECT_THROW_WITH_MESSAGE(FindProjectorCorners(x_only, board, corners), Error,
+                            "both projector axes");
   LocalHomographyOptions options;
   options.window_fraction = 0.0;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "window_fraction", "got 0");
   options = {};
   options.min_half_window_px = 10;
   options.max_half_window_px = 5;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "half window", "[10, 5]");
 }
 
 // A camera that sees the projector image through p = scale·(x, y) + offset (projector
@@ -330,7 +333,8 @@ TEST(RefineGrayCodeSubpixel, OmittedLowBitsAndBinaryCodes) {
   // A map of another size is refused.
   CorrespondenceMap other = decoded;
   other.mask = cv::Mat::zeros(10, 10, CV_8UC1);
-  EXPECT_THROW(RefineGrayCodeSubpixel(coarse, other), Error);
+  EXPECT_THROW_WITH_MESSAGE(RefineGrayCodeSubpixel(coarse, other), Error, "map is 10x10",
+                            "frames are 320x240");
 }
 
 }  // namespace

@@ -12,6 +12,7 @@
 
 #include "calibration/calibration_report.h"
 #include "core/error.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -280,7 +281,7 @@ TEST(RigCalibrator, RefusesTooFewViewsAndMismatchedInput) {
   const std::vector<Rigid3d> poses = MakePoses(truth, board, 3, 5);
   std::mt19937_64 engine(5);
   RigCalibrator calibrator(board);
-  EXPECT_THROW(calibrator.Calibrate(), Error);  // no views
+  EXPECT_THROW_WITH_MESSAGE(calibrator.Calibrate(), Error, "no views");  // no views
   calibrator.AddObservation(Observe(truth, board, poses[0], 0.0, &engine, "a"), Sizes(truth));
   calibrator.AddObservation(Observe(truth, board, poses[1], 0.0, &engine, "b"), Sizes(truth));
   try {
@@ -302,7 +303,8 @@ TEST(RigCalibrator, RefusesTooFewViewsAndMismatchedInput) {
   }
   BoardObservation short_view = Observe(truth, board, poses[2], 0.0, &engine, "d");
   short_view.camera_corners.pop_back();
-  EXPECT_THROW(calibrator.AddObservation(short_view, Sizes(truth)), Error);
+  EXPECT_THROW_WITH_MESSAGE(calibrator.AddObservation(short_view, Sizes(truth)), Error, "view d",
+                            "53 camera and 54 projector corners");
   // The projector must see the board in at least three views.
   BoardObservation dark = Observe(truth, board, poses[2], 0.0, &engine, "e");
   for (auto& corner : dark.projector_corners) corner.reset();
@@ -320,25 +322,29 @@ TEST(CalibrationOptions, NamesAndChecks) {
   EXPECT_EQ(DistortionTerms::None().ToString(), "none");
   EXPECT_EQ(DistortionTermsFromString("k3,k1").ToString(), "k1,k3");
   EXPECT_EQ(DistortionTermsFromString("k1,k2,p1,p2").FixedIndices(), std::vector<int>{4});
-  EXPECT_THROW(DistortionTermsFromString("k4"), Error);
-  EXPECT_THROW(DistortionTermsFromString(""), Error);
+  EXPECT_THROW_WITH_MESSAGE(DistortionTermsFromString("k4"), Error, "'k4'");
+  EXPECT_THROW_WITH_MESSAGE(DistortionTermsFromString(""), Error, "distortion terms ''");
   for (RobustLoss loss : {RobustLoss::kNone, RobustLoss::kHuber, RobustLoss::kCauchy}) {
     EXPECT_EQ(RobustLossFromString(ToString(loss)), loss);
   }
-  EXPECT_THROW(RobustLossFromString("tukey"), Error);
+  EXPECT_THROW_WITH_MESSAGE(RobustLossFromString("tukey"), Error, "'tukey'");
   EXPECT_NO_THROW(CalibrationOptions().Check());
-  const auto expect_invalid = [](auto change) {
+  // Each invalid option is named in the message, with its value.
+  const auto expect_invalid = [](auto change, const char* key, const char* value) {
     CalibrationOptions options;
     change(&options);
-    EXPECT_THROW(options.Check(), Error);
+    EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, key, value);
   };
-  expect_invalid([](CalibrationOptions* o) { o->loss_scale_px = 0; });
-  expect_invalid([](CalibrationOptions* o) { o->max_view_rms_ratio = 1.0; });
-  expect_invalid([](CalibrationOptions* o) { o->min_views = 2; });
-  expect_invalid([](CalibrationOptions* o) { o->num_threads = 0; });
-  expect_invalid([](CalibrationOptions* o) { o->min_projector_corner_fraction = 0; });
-  expect_invalid([](CalibrationOptions* o) { o->local_homography.ransac_threshold_px = -1; });
-  EXPECT_THROW(RigCalibrator(BoardSpec{1, 6, 0.02}), Error);
+  expect_invalid([](CalibrationOptions* o) { o->loss_scale_px = 0; }, "loss_scale_px", "got 0");
+  expect_invalid([](CalibrationOptions* o) { o->max_view_rms_ratio = 1.0; }, "max_view_rms_ratio",
+                 "got 1");
+  expect_invalid([](CalibrationOptions* o) { o->min_views = 2; }, "min_views", "got 2");
+  expect_invalid([](CalibrationOptions* o) { o->num_threads = 0; }, "num_threads", "got 0");
+  expect_invalid([](CalibrationOptions* o) { o->min_projector_corner_fraction = 0; },
+                 "min_projector_corner_fraction", "got 0");
+  expect_invalid([](CalibrationOptions* o) { o->local_homography.ransac_threshold_px = -1; },
+                 "ransac_threshold_px", "got -1");
+  EXPECT_THROW_WITH_MESSAGE(RigCalibrator(BoardSpec{1, 6, 0.02}), Error, "board 1x6", "2x2");
 }
 
 TEST(CalibrationReport, JsonPlotAndSidecarNames) {

@@ -8,6 +8,7 @@
 #include <opencv2/core.hpp>
 
 #include "core/error.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -204,14 +205,15 @@ TEST(Triangulation, MismatchedSizesAreClearErrors) {
   CorrespondenceMap map = PlaneMap(rig, true, true, false, &truth);
   RigCalibration other = rig;
   other.camera.width = 640;
-  EXPECT_THROW(Triangulate(map, other, cv::Mat()), Error);
+  EXPECT_THROW_WITH_MESSAGE(Triangulate(map, other, cv::Mat()), Error, "320x240", "640x240");
   other = rig;
   other.projector.height = 100;
-  EXPECT_THROW(Triangulate(map, other, cv::Mat()), Error);
-  EXPECT_THROW(Triangulate(map, rig, cv::Mat(10, 10, CV_8UC1)), Error);
+  EXPECT_THROW_WITH_MESSAGE(Triangulate(map, other, cv::Mat()), Error, "256x100");
+  EXPECT_THROW_WITH_MESSAGE(Triangulate(map, rig, cv::Mat(10, 10, CV_8UC1)), Error,
+                            "white image is 10x10");
   TriangulationOptions bad;
   bad.max_depth = -1;
-  EXPECT_THROW(Triangulate(map, rig, cv::Mat(), bad), Error);
+  EXPECT_THROW_WITH_MESSAGE(Triangulate(map, rig, cv::Mat(), bad), Error, "depth band", "-1");
 }
 
 }  // namespace

@@ -224,11 +224,11 @@ TEST(RigSession, AnExceptionMidRecordingLeavesNoOutputDirectory) {
   const std::string out = scratch.File("scan");
   Bench bench(2);
   RigSession session(bench.display, bench.camera);
-  EXPECT_THROW(session.Record(Patterns(), out, nullptr,
-                              [](size_t done, size_t) {
-                                if (done == 7) throw std::runtime_error("power cut");
-                              }),
-               std::runtime_error);
+  EXPECT_THROW_WITH_MESSAGE(session.Record(Patterns(), out, nullptr,
+                                           [](size_t done, size_t) {
+                                             if (done == 7) throw std::runtime_error("power cut");
+                                           }),
+                            std::runtime_error, "power cut");
   ExpectNothingWritten(out);
   // An existing recording at that path survives a failed re-recording untouched.
   Bench good(2);
@@ -332,13 +332,13 @@ TEST(RigSessionOptions, Check) {
   RigSessionOptions options;
   EXPECT_NO_THROW(options.Check());
   options.settle = -1;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "settle time -1");
   options = RigSessionOptions();
   options.transition_fraction = 1.0;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "transition fraction 1");
   options = RigSessionOptions();
   options.latency_flashes = 0;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "latency flashes 0");
   options = RigSessionOptions();
   options.latency = 0.1;  // given: no measurement
   Bench bench(5);

@@ -13,6 +13,7 @@
 
 #include "capture/v4l2_internal.h"
 #include "core/error.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace internal {
@@ -85,7 +86,8 @@ TEST(ChooseFormat, StepwiseRanges) {
   const FormatChoice choice = ChooseFormat(offers, 1024, 768, PixelFormat::kAuto, "/dev/video2");
   EXPECT_EQ(choice.fourcc, kFourCcGrey);
   EXPECT_EQ(choice.width, 1024);
-  EXPECT_THROW(ChooseFormat(offers, 1000, 768, PixelFormat::kAuto, "/dev/video2"), Error)
+  EXPECT_THROW_WITH_MESSAGE(ChooseFormat(offers, 1000, 768, PixelFormat::kAuto, "/dev/video2"),
+                            Error, "/dev/video2", "1000x768")
       << "1000 is off the 16-pixel grid";
   const FormatChoice largest = ChooseFormat(offers, 0, 0, PixelFormat::kAuto, "/dev/video2");
   EXPECT_EQ(largest.width, 2048);
@@ -148,9 +150,11 @@ TEST(ConvertToGrey, YuyvKeepsTheLumaBytes) {
   cv::cvtColor(cv::Mat(height, width, CV_8UC2, data.data()), expected, cv::COLOR_YUV2BGR_YUYV);
   ASSERT_EQ(color.type(), CV_8UC3);
   EXPECT_EQ(cv::norm(color, expected, cv::NORM_INF), 0.0);
-  EXPECT_THROW(ConvertToGrey(layout, data.data(), data.size() - 1), Error);
+  EXPECT_THROW_WITH_MESSAGE(ConvertToGrey(layout, data.data(), data.size() - 1), Error, "23 bytes",
+                            "needs 24");
   BufferLayout odd{kFourCcYuyv, 5, 2, 0, 0};
-  EXPECT_THROW(ConvertToGrey(odd, data.data(), data.size()), Error);
+  EXPECT_THROW_WITH_MESSAGE(ConvertToGrey(odd, data.data(), data.size()), Error, "even width",
+                            "got 5");
 }
 
 TEST(ConvertToGrey, MjpegIsDecoded) {
@@ -351,16 +355,16 @@ TEST(CameraOptions, Check) {
   CameraOptions options;
   EXPECT_NO_THROW(options.Check());
   options.width = 640;  // without a height
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "640x0");
   options = CameraOptions();
   options.buffers = 1;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "buffers 1");
   options = CameraOptions();
   options.exposure = -1;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "exposure -1");
   EXPECT_EQ(PixelFormatFromString("MJPG"), PixelFormat::kMjpeg);
   EXPECT_EQ(PixelFormatFromString("gray"), PixelFormat::kGrey);
-  EXPECT_THROW(PixelFormatFromString("h264"), Error);
+  EXPECT_THROW_WITH_MESSAGE(PixelFormatFromString("h264"), Error, "'h264'");
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include <opencv2/core/eigen.hpp>
 
 #include "core/error.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -68,12 +69,12 @@ TEST(CameraModel, CheckRejectsInvalidModels) {
   CameraModel model = Webcam({});
   EXPECT_NO_THROW(model.Check());
   model.width = 0;
-  EXPECT_THROW(model.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(model.Check(), Error, "image size 0x720");
   model = Webcam({0.1, 0.2, 0.3});
-  EXPECT_THROW(model.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(model.Check(), Error, "distortion", "got 3");
   model = Webcam({});
   model.matrix(0, 0) = -5;
-  EXPECT_THROW(model.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(model.Check(), Error, "fx=-5");
 }
 
 TEST(CameraModel, MakePinholeHasTheRequestedFieldOfView) {

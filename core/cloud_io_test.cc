@@ -76,23 +76,26 @@ TEST(CloudIo, TruncatedAndMalformedFilesAreErrors) {
   WritePointCloud(scratch.File("full.ply"), TestCloud(true, false));
   std::string bytes = ReadFileToString(scratch.File("full.ply"), "test");
   WriteFileAtomic(scratch.File("cut.ply"), bytes.substr(0, bytes.size() - 10));
-  EXPECT_THROW(ReadPointCloud(scratch.File("cut.ply")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadPointCloud(scratch.File("cut.ply")), Error, "cut.ply", "truncated");
   WriteFileAtomic(scratch.File("magic.ply"), "plx\nformat ascii 1.0\nend_header\n");
-  EXPECT_THROW(ReadPointCloud(scratch.File("magic.ply")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadPointCloud(scratch.File("magic.ply")), Error, "magic.ply", "magic");
   WriteFileAtomic(scratch.File("noxyz.ply"),
                   "ply\nformat ascii 1.0\nelement vertex 1\nproperty float a\nend_header\n1\n");
-  EXPECT_THROW(ReadPointCloud(scratch.File("noxyz.ply")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadPointCloud(scratch.File("noxyz.ply")), Error, "noxyz.ply",
+                            "x, y, z");
   WriteFileAtomic(scratch.File("bad.pcd"), "# .PCD v0.7\nFIELDS x y\nnonsense");
-  EXPECT_THROW(ReadPointCloud(scratch.File("bad.pcd")), Error);
-  EXPECT_THROW(ReadPointCloud(scratch.File("cloud.xyz")), Error);
-  EXPECT_THROW(ReadPointCloud(scratch.File("missing.ply")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadPointCloud(scratch.File("bad.pcd")), Error, "bad.pcd");
+  EXPECT_THROW_WITH_MESSAGE(ReadPointCloud(scratch.File("cloud.xyz")), Error, "cloud.xyz", "'xyz'");
+  EXPECT_THROW_WITH_MESSAGE(ReadPointCloud(scratch.File("missing.ply")), Error, "missing.ply",
+                            "no such file");
 }
 
 TEST(CloudIo, MismatchedAttributesRefusedOnWrite) {
   testing::ScratchDir scratch;
   PointCloud cloud = TestCloud(true, false);
   cloud.colors.pop_back();
-  EXPECT_THROW(WritePointCloud(scratch.File("x.ply"), cloud), Error);
+  EXPECT_THROW_WITH_MESSAGE(WritePointCloud(scratch.File("x.ply"), cloud), Error,
+                            "99 colours for 100 points");
 }
 
 }  // namespace

@@ -37,7 +37,8 @@ TEST(FileUtil, ReadErrorsNameTheFile) {
     EXPECT_NE(std::string(e.what()).find("widget"), std::string::npos);
     EXPECT_NE(std::string(e.what()).find("missing.txt"), std::string::npos);
   }
-  EXPECT_THROW(RequireReadableFile(scratch.path(), "dir"), Error);
+  EXPECT_THROW_WITH_MESSAGE(RequireReadableFile(scratch.path(), "dir"), Error, scratch.path(),
+                            "not a regular file");
 }
 
 TEST(FileUtil, ImageRoundTripIncludingExr) {
@@ -58,7 +59,7 @@ TEST(FileUtil, ImageRoundTripIncludingExr) {
 TEST(FileUtil, CorruptImageIsAClearError) {
   testing::ScratchDir scratch;
   std::ofstream(scratch.File("bad.png")) << "not a png";
-  EXPECT_THROW(ReadImage(scratch.File("bad.png")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadImage(scratch.File("bad.png")), Error, "bad.png", "cannot decode");
 }
 
 TEST(FileUtil, StagedDirectoryCommitsWholeOrNothing) {

@@ -169,7 +169,7 @@ TEST(FrameSet, BadFramesGiveClearErrors) {
 TEST(FrameSet, CheckRejectsMixedBitDepths) {
   FrameSet set = SmallSet();
   set.images[1] = cv::Mat(6, 8, CV_16UC1, cv::Scalar(0));
-  EXPECT_THROW(set.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(set.Check(), Error, "black.png", "bit depth");
 }
 
 }  // namespace

@@ -68,14 +68,14 @@ TEST(MeshIo, OffAndStl) {
 TEST(MeshIo, MalformedMeshesAreErrors) {
   testing::ScratchDir scratch;
   WriteFileAtomic(scratch.File("bad.obj"), "v 0 0 0\nf 1 2 3\n");
-  EXPECT_THROW(ReadMesh(scratch.File("bad.obj")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadMesh(scratch.File("bad.obj")), Error, "bad.obj", "vertex index 2");
   WriteFileAtomic(scratch.File("empty.obj"), "v 0 0 0\n");
-  EXPECT_THROW(ReadMesh(scratch.File("empty.obj")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadMesh(scratch.File("empty.obj")), Error, "empty.obj", "no faces");
   WriteFileAtomic(scratch.File("bad.off"), "OFF\n3 1 0\n0 0 0\n1 0\n");
-  EXPECT_THROW(ReadMesh(scratch.File("bad.off")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadMesh(scratch.File("bad.off")), Error, "bad.off", "vertex 1");
   WriteFileAtomic(scratch.File("bad.stl"), "garbage");
-  EXPECT_THROW(ReadMesh(scratch.File("bad.stl")), Error);
-  EXPECT_THROW(ReadMesh(scratch.File("model.3ds")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadMesh(scratch.File("bad.stl")), Error, "bad.stl");
+  EXPECT_THROW_WITH_MESSAGE(ReadMesh(scratch.File("model.3ds")), Error, "model.3ds", "'3ds'");
 }
 
 TEST(MeshIo, SharedMeshesLoadWhenPresent) {

@@ -4,6 +4,7 @@
 #include <opencv2/core.hpp>
 
 #include "core/error.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -27,7 +28,8 @@ TEST(Plots, ConfusionMatrixShadesByRowShare) {
   }
   EXPECT_LT(darkest, 300);
   EXPECT_EQ(lightest, 765);
-  EXPECT_THROW(DrawConfusionMatrix({{1, 2}}, labels, "bad"), Error);
+  EXPECT_THROW_WITH_MESSAGE(DrawConfusionMatrix({{1, 2}}, labels, "bad"), Error,
+                            "1 rows for 3 labels");
 }
 
 TEST(Plots, HistogramBarsFollowTheCounts) {
@@ -41,7 +43,7 @@ TEST(Plots, HistogramBarsFollowTheCounts) {
   EXPECT_EQ(image.at<cv::Vec3b>(52, first_bin_x), bar);
   EXPECT_NE(image.at<cv::Vec3b>(52, last_bin_x), bar);
   EXPECT_EQ(image.at<cv::Vec3b>(360 - 51, last_bin_x), bar);  // 1 of 100: a 2-pixel bar
-  EXPECT_THROW(DrawHistogram(values, 1.0, 0.0, 10, "bad", "x"), Error);
+  EXPECT_THROW_WITH_MESSAGE(DrawHistogram(values, 1.0, 0.0, 10, "bad", "x"), Error, "[1, 0]");
 }
 
 }  // namespace

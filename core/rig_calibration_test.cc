@@ -83,8 +83,10 @@ TEST(RigCalibration, MalformedFilesNameTheProblem) {
   EXPECT_NE(error_for("").find("bad.yaml"), std::string::npos);
   RigCalibration rig = TestRig();
   rig.proj_from_cam.rotation(0, 0) = 3.0;
-  EXPECT_THROW(WriteRigCalibration(scratch.File("x.yaml"), rig), Error);
-  EXPECT_THROW(ReadRigCalibration(scratch.File("missing.yaml")), Error);
+  EXPECT_THROW_WITH_MESSAGE(WriteRigCalibration(scratch.File("x.yaml"), rig), Error,
+                            "proj_from_cam_rotation", "det = 2.95");
+  EXPECT_THROW_WITH_MESSAGE(ReadRigCalibration(scratch.File("missing.yaml")), Error, "missing.yaml",
+                            "no such file");
 }
 
 }  // namespace

@@ -676,12 +676,14 @@ void CheckMap(const CorrespondenceMap& map) {
              "correspondence map: the mask must be a non-empty CV_8UC1 image");
   SOPE_CHECK(map.HasX() || map.HasY(), "correspondence map: no coded axis");
   const cv::Size size = map.mask.size();
-  for (const cv::Mat* image : {&map.proj_x, &map.proj_y, &map.confidence}) {
+  for (const auto& [name, image] : {std::pair<const char*, const cv::Mat*>{"proj_x", &map.proj_x},
+                                    {"proj_y", &map.proj_y},
+                                    {"confidence", &map.confidence}}) {
     if (image == &map.confidence || !image->empty()) {
       SOPE_CHECK(image->type() == CV_32FC1 && image->size() == size,
-                 "correspondence map: coordinate and confidence images must be CV_32FC1 of "
-                 "the mask size {}x{}",
-                 size.width, size.height);
+                 "correspondence map: {} is {} {}x{}, expected CV_32FC1 of the mask size {}x{}",
+                 name, cv::typeToString(image->type()), image->cols, image->rows, size.width,
+                 size.height);
     }
   }
   SOPE_CHECK(map.step_x > 0.0f && map.step_y > 0.0f, "correspondence map: invalid steps {} {}",
@@ -891,7 +893,8 @@ void Decode(const FrameSet& frame_set, const DecoderOptions& options, Correspond
 }
 
 cv::Mat ColorizeCoordinate(const cv::Mat& coordinate, int projector_size) {
-  SOPE_CHECK(coordinate.type() == CV_32FC1, "ColorizeCoordinate: expected a CV_32FC1 image");
+  SOPE_CHECK(coordinate.type() == CV_32FC1, "ColorizeCoordinate: expected a CV_32FC1 image, got {}",
+             cv::typeToString(coordinate.type()));
   SOPE_CHECK(projector_size > 0, "ColorizeCoordinate: invalid projector size {}", projector_size);
   const float hue_per_pixel =
       internal::kMaxHueDeg / static_cast<float>(std::max(projector_size - 1, 1));

@@ -267,7 +267,7 @@ TEST(BitDecision, StringsRoundTrip) {
     EXPECT_EQ(BitDecisionFromString(ToString(mode)), mode);
   }
   EXPECT_EQ(ToString(BitDecision::kRobust), "robust");
-  EXPECT_THROW(BitDecisionFromString("Robust"), Error);
+  EXPECT_THROW_WITH_MESSAGE(BitDecisionFromString("Robust"), Error, "'Robust'");
 }
 
 TEST(CoordinateLut, GrayAndBinaryDecodeEveryProjectorPixel) {
@@ -774,7 +774,8 @@ TEST(SyntheticDecode, DecodingIntoAMapReusesItsImagesUnlessShared) {
   Decode(RenderScene(x_only).frame_set, DecoderOptions(), &map);
   EXPECT_TRUE(map.HasX());
   EXPECT_FALSE(map.HasY());
-  EXPECT_THROW(Decode(capture.frame_set, DecoderOptions(), nullptr), Error);
+  EXPECT_THROW_WITH_MESSAGE(Decode(capture.frame_set, DecoderOptions(), nullptr), Error,
+                            "no output map");
 }
 
 // ---------------------------------------------------------------------------------------
@@ -832,25 +833,31 @@ TEST(CorrespondenceMapFiles, WriteReadRoundTripIsExact) {
 TEST(CorrespondenceMapFiles, BadDirectoriesAreRefused) {
   const CorrespondenceMap map = Decode(SmallCapture().frame_set);
   testing::ScratchDir scratch;
-  EXPECT_THROW(ReadCorrespondenceMap(scratch.File("missing")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadCorrespondenceMap(scratch.File("missing")), Error,
+                            "missing/correspondence.json", "no such file");
   WriteCorrespondenceMap(scratch.path(), map);
   // A missing image.
   std::filesystem::remove(scratch.File("proj_x.exr"));
-  EXPECT_THROW(ReadCorrespondenceMap(scratch.path()), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadCorrespondenceMap(scratch.path()), Error, "proj_x.exr",
+                            "no such file");
   // An image of the wrong size.
   WriteCorrespondenceMap(scratch.path(), map);
   WriteImageAtomic(scratch.File("mask.png"), cv::Mat::zeros(10, 10, CV_8UC1));
-  EXPECT_THROW(ReadCorrespondenceMap(scratch.path()), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadCorrespondenceMap(scratch.path()), Error,
+                            "proj_x is CV_32FC1 160x120", "mask size 10x10");
   // Corrupt JSON and a wrong format tag.
   WriteCorrespondenceMap(scratch.path(), map);
   WriteFileAtomic(scratch.File("correspondence.json"), "{ \"format\": ");
-  EXPECT_THROW(ReadCorrespondenceMap(scratch.path()), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadCorrespondenceMap(scratch.path()), Error, "correspondence.json",
+                            "not valid JSON");
   WriteFileAtomic(scratch.File("correspondence.json"), "{ \"format\": \"other/1\" }");
-  EXPECT_THROW(ReadCorrespondenceMap(scratch.path()), Error);
+  EXPECT_THROW_WITH_MESSAGE(ReadCorrespondenceMap(scratch.path()), Error, "correspondence.json",
+                            "'other/1'");
   // Writing an inconsistent map.
   CorrespondenceMap broken = map;
   broken.confidence = cv::Mat();
-  EXPECT_THROW(WriteCorrespondenceMap(scratch.File("broken"), broken), Error);
+  EXPECT_THROW_WITH_MESSAGE(WriteCorrespondenceMap(scratch.File("broken"), broken), Error,
+                            "confidence", "0x0");
 }
 
 TEST(ColorizeCoordinate, HueFollowsTheCoordinateAndInvalidIsBlack) {
@@ -868,15 +875,16 @@ TEST(ColorizeCoordinate, HueFollowsTheCoordinateAndInvalidIsBlack) {
   EXPECT_EQ(green[1], 255);
   EXPECT_LT(green[0], 64);
   EXPECT_LT(green[2], 64);
-  EXPECT_THROW(ColorizeCoordinate(cv::Mat::zeros(2, 2, CV_8UC1), 100), Error);
-  EXPECT_THROW(ColorizeCoordinate(coordinate, 0), Error);
+  EXPECT_THROW_WITH_MESSAGE(ColorizeCoordinate(cv::Mat::zeros(2, 2, CV_8UC1), 100), Error,
+                            "CV_32FC1", "got CV_8UC1");
+  EXPECT_THROW_WITH_MESSAGE(ColorizeCoordinate(coordinate, 0), Error, "invalid projector size 0");
 }
 
 TEST(DecodeErrors, InvalidOptionsAndUndecodableSetsThrow) {
   SyntheticCapture capture = SmallCapture();
   DecoderOptions bad;
   bad.min_contrast = -3;
-  EXPECT_THROW(Decode(capture.frame_set, bad), Error);
+  EXPECT_THROW_WITH_MESSAGE(Decode(capture.frame_set, bad), Error, "min_contrast -3");
 
   // Inverses but no white/black: auto and robust decode, threshold cannot.
   SceneOptions scene;
@@ -890,7 +898,8 @@ TEST(DecodeErrors, InvalidOptionsAndUndecodableSetsThrow) {
   DecoderOptions threshold;
   threshold.bit_decision = BitDecision::kThreshold;
   EXPECT_NO_THROW(Decode(no_references.frame_set));
-  EXPECT_THROW(Decode(no_references.frame_set, threshold), Error);
+  EXPECT_THROW_WITH_MESSAGE(Decode(no_references.frame_set, threshold), Error, "threshold decoding",
+                            "white and a black frame");
 
   // No inverses: robust decoding refuses with a message that says why.
   scene.patterns.white_black = true;
@@ -910,12 +919,13 @@ TEST(DecodeErrors, InvalidOptionsAndUndecodableSetsThrow) {
   const size_t white = *set.manifest.Find(FrameRole::kWhite);
   set.manifest.frames.erase(set.manifest.frames.begin() + white);
   set.images.erase(set.images.begin() + white);
-  EXPECT_THROW(Decode(set), Error);
+  EXPECT_THROW_WITH_MESSAGE(Decode(set), Error, "without inverses", "white and a black frame");
 
   // Images that do not match the manifest.
   SyntheticCapture wrong_size = SmallCapture();
   cv::resize(wrong_size.frame_set.images[3], wrong_size.frame_set.images[3], cv::Size(80, 60));
-  EXPECT_THROW(Decode(wrong_size.frame_set), Error);
+  EXPECT_THROW_WITH_MESSAGE(Decode(wrong_size.frame_set), Error, "frame_03.png", "80x60",
+                            "160x120");
 }
 
 TEST(DecodeInputs, NonContinuousImagesDecodeLikeContinuousOnes) {

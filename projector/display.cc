@@ -11,8 +11,8 @@ namespace internal {
 
 void CheckPattern(const cv::Mat& pattern, int width, int height, const std::string& display_name) {
   SOPE_CHECK(pattern.type() == CV_8UC1 || pattern.type() == CV_8UC3,
-             "{}: patterns must be 8-bit grey or BGR images, got OpenCV type {}", display_name,
-             pattern.type());
+             "{}: patterns must be 8-bit grey or BGR images, got {}", display_name,
+             cv::typeToString(pattern.type()));
   SOPE_CHECK(pattern.cols == width && pattern.rows == height,
              "{}: pattern is {}x{} but the projector is {}x{} (one pattern pixel per projector "
              "pixel; generate the patterns for this projector size)",

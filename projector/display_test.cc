@@ -12,6 +12,7 @@
 
 #include "core/error.h"
 #include "projector/patterns.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -126,17 +127,18 @@ TEST(VirtualDisplay, RefusesPatternsOfAnotherSize) {
               std::string::npos)
         << e.what();
   }
-  EXPECT_THROW(display.Show(cv::Mat::zeros(768, 1024, CV_16UC1)), Error);
+  EXPECT_THROW_WITH_MESSAGE(display.Show(cv::Mat::zeros(768, 1024, CV_16UC1)), Error,
+                            "virtual display", "got CV_16UC1");
 }
 
 TEST(DisplayOptions, Check) {
   DisplayOptions options;
   EXPECT_NO_THROW(options.Check());
   options.width = 0;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "projector size 0x768");
   options = DisplayOptions();
   options.monitor = -1;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "monitor index -1");
 }
 
 TEST(GlfwDisplay, WindowedReadBackIsExact) {
@@ -219,7 +221,7 @@ TEST(GlfwDisplay, OneWindowPerProcess) {
   options.width = 64;
   options.height = 48;
   const std::unique_ptr<Display> first = OpenGlfwDisplay(options);
-  EXPECT_THROW(OpenGlfwDisplay(options), Error);
+  EXPECT_THROW_WITH_MESSAGE(OpenGlfwDisplay(options), Error, "already open");
   first->Show(cv::Mat(48, 64, CV_8UC1, cv::Scalar(99)));
   EXPECT_EQ(CountDifferences(cv::Mat(48, 64, CV_8UC1, cv::Scalar(99)), first->ReadBack()), 0);
 }
@@ -240,7 +242,7 @@ TEST(GlfwDisplay, NoDisplayIsOneClearError) {
     EXPECT_EQ(message.rfind("no display: ", 0), 0u) << message;
     EXPECT_EQ(message.find('\n'), std::string::npos) << message;
   }
-  EXPECT_THROW(ListMonitors(), Error);
+  EXPECT_THROW_WITH_MESSAGE(ListMonitors(), Error, "$DISPLAY is not set");
   // An X server that is not there.
   ::setenv("DISPLAY", ":4999", 1);
   try {

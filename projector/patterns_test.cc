@@ -13,6 +13,7 @@
 #include <opencv2/structured_light.hpp>
 
 #include "core/error.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -63,21 +64,21 @@ TEST(PatternAxes, StringsRoundTrip) {
   for (PatternAxes axes : {PatternAxes::kX, PatternAxes::kY, PatternAxes::kXY}) {
     EXPECT_EQ(PatternAxesFromString(ToString(axes)), axes);
   }
-  EXPECT_THROW(PatternAxesFromString("z"), Error);
+  EXPECT_THROW_WITH_MESSAGE(PatternAxesFromString("z"), Error, "'z'");
 }
 
 TEST(PatternOptions, CheckNamesTheInvalidValue) {
   EXPECT_NO_THROW(PatternOptions().Check());
   PatternOptions options;
   options.projector_width = 0;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "projector size 0x768");
   options = PatternOptions();
   options.skip_low_bits = BitsForSize(options.projector_height);  // nothing left on y
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "skip_low_bits 10");
   options = PatternOptions();
   options.inverted = false;
   options.white_black = false;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "inverse frames or white/black references");
 }
 
 // The frames GeneratePatterns must produce, in display order.
@@ -286,8 +287,9 @@ TEST_P(OpenCvGrayCode, ManifestMatchesGenerateImageForImage) {
   EXPECT_EQ(cv::countNonZero(black), 0);
   // A list of the wrong length is refused.
   files.pop_back();
-  EXPECT_THROW(MakeOpenCvGrayCodeManifest(projector.width, projector.height, 640, 480, files),
-               Error);
+  EXPECT_THROW_WITH_MESSAGE(
+      MakeOpenCvGrayCodeManifest(projector.width, projector.height, 640, 480, files), Error,
+      "got " + std::to_string(files.size()));
 }
 
 // OpenCV's own decoder reads our rendered frames back to every projector pixel, so the

@@ -303,10 +303,12 @@ TEST(Database, WriteRefusesInconsistentData) {
   testing::ScratchDir scratch;
   DatabaseData data = MakeSyntheticData(6);
   data.view_clouds.pop_back();
-  EXPECT_THROW(WriteDatabase(scratch.File("bad.sopedb"), data), Error);
+  EXPECT_THROW_WITH_MESSAGE(WriteDatabase(scratch.File("bad.sopedb"), data), Error,
+                            "20 view clouds for 21 views");
   data = MakeSyntheticData(6);
   data.views[3].model = 2;  // not within model 2's view range
-  EXPECT_THROW(WriteDatabase(scratch.File("bad.sopedb"), data), Error);
+  EXPECT_THROW_WITH_MESSAGE(WriteDatabase(scratch.File("bad.sopedb"), data), Error, "view 3",
+                            "model 2");
   EXPECT_FALSE(std::ifstream(scratch.File("bad.sopedb")).good());
 }
 
@@ -318,7 +320,7 @@ TEST(Database, OptionsPresetsAndJson) {
   EXPECT_EQ(thesis.layout, ViewpointLayout::kThesis18);
   EXPECT_EQ(thesis.views_per_model, 18);
   EXPECT_EQ(thesis.hash.method, HashMethod::kMinimalLoss);
-  EXPECT_THROW(DatabaseOptions::Preset("fast"), Error);
+  EXPECT_THROW_WITH_MESSAGE(DatabaseOptions::Preset("fast"), Error, "'fast'");
   DatabaseOptions custom = sope;
   custom.hash.method = HashMethod::kSpectral;
   custom.hash.bits = 128;
@@ -329,10 +331,10 @@ TEST(Database, OptionsPresetsAndJson) {
             DatabaseOptionsToJson(custom));
   DatabaseOptions bad = sope;
   bad.views_per_model = 0;
-  EXPECT_THROW(bad.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(bad.Check(), Error, "views per model", "got 0");
   bad = sope;
   bad.view_cloud_points = 4;
-  EXPECT_THROW(bad.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(bad.Check(), Error, "view_cloud_points", "got 4");
 }
 
 }  // namespace

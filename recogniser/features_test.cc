@@ -30,6 +30,7 @@
 #include "simulator/primitives.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/virtual_rig.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -275,7 +276,8 @@ TEST(Bezier, EvaluationHasLinearPrecisionAndInterpolatesCorners) {
   EXPECT_LT((EvaluateBezier(bilinear, 0.5f, 0.5f) - Vector3f(0.5f, 0.5f, 1.5f)).norm(), 1e-6f);
   BezierPatch broken = bilinear;
   broken.control.pop_back();
-  EXPECT_THROW(EvaluateBezier(broken, 0.5f, 0.5f), Error);
+  EXPECT_THROW_WITH_MESSAGE(EvaluateBezier(broken, 0.5f, 0.5f), Error, "order (1, 1)",
+                            "3 control points");
 }
 
 TEST(Bezier, FitReproducesAPlaneExactly) {

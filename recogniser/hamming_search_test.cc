@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -64,10 +65,11 @@ TEST(BinaryCodesTest, LayoutAndBits) {
   EXPECT_EQ(HammingDistance(codes.code(0), codes.code(1), 2), 2);
   EXPECT_NO_THROW(codes.Check());
   codes.code(2)[1] |= uint64_t{1} << 6;  // padding bit 70
-  EXPECT_THROW(codes.Check(), Error);
-  EXPECT_THROW(BinaryCodes(0, 1), Error);
-  EXPECT_THROW(BinaryCodes(BinaryCodes::kMaxBits + 1, 1), Error);
-  EXPECT_THROW(BinaryCodes(8, -1), Error);
+  EXPECT_THROW_WITH_MESSAGE(codes.Check(), Error, "code 2", "padding bits");
+  EXPECT_THROW_WITH_MESSAGE(BinaryCodes(0, 1), Error, "code length", "got 0");
+  EXPECT_THROW_WITH_MESSAGE(BinaryCodes(BinaryCodes::kMaxBits + 1, 1), Error, "code length",
+                            "got 4097");
+  EXPECT_THROW_WITH_MESSAGE(BinaryCodes(8, -1), Error, "number of codes", "got -1");
 }
 
 TEST(HammingSearchTest, KernelNamesRoundTrip) {
@@ -75,7 +77,7 @@ TEST(HammingSearchTest, KernelNamesRoundTrip) {
                                 PopcountKernel::kAvx2, PopcountKernel::kAvx512}) {
     EXPECT_EQ(PopcountKernelFromString(ToString(kernel)), kernel);
   }
-  EXPECT_THROW(PopcountKernelFromString("sse9"), Error);
+  EXPECT_THROW_WITH_MESSAGE(PopcountKernelFromString("sse9"), Error, "'sse9'");
   EXPECT_TRUE(PopcountKernelAvailable(PopcountKernel::kScalar));
 }
 
@@ -208,26 +210,30 @@ TEST(HammingSearchTest, RejectsInvalidArguments) {
   const BinaryCodes database = RandomCodes(64, 10, 1);
   const HammingIndex index(database);
   const BinaryCodes query = RandomCodes(64, 1, 2);
-  EXPECT_THROW(index.KBestSearch(query.code(0), 0), Error);
-  EXPECT_THROW(index.KBestSearch(query, -1), Error);
-  EXPECT_THROW(index.RadiusSearch(query.code(0), 65), Error);
+  EXPECT_THROW_WITH_MESSAGE(index.KBestSearch(query.code(0), 0), Error, "k ≥ 1", "got 0");
+  EXPECT_THROW_WITH_MESSAGE(index.KBestSearch(query, -1), Error, "k ≥ 1", "got -1");
+  EXPECT_THROW_WITH_MESSAGE(index.RadiusSearch(query.code(0), 65), Error, "search radius 65",
+                            "64 bits");
   EXPECT_TRUE(index.RadiusSearch(query.code(0), -1).empty());
-  EXPECT_THROW(index.KBestSearch(RandomCodes(128, 1, 3), 1), Error);
-  EXPECT_THROW(index.RadiusSearch(RandomCodes(32, 1, 3), 1), Error);
+  EXPECT_THROW_WITH_MESSAGE(index.KBestSearch(RandomCodes(128, 1, 3), 1), Error, "128 bits",
+                            "the database 64");
+  EXPECT_THROW_WITH_MESSAGE(index.RadiusSearch(RandomCodes(32, 1, 3), 1), Error, "32 bits",
+                            "the database 64");
   BinaryCodes bad = RandomCodes(60, 3, 4);
   bad.code(1)[0] |= uint64_t{1} << 62;  // padding
-  EXPECT_THROW(HammingIndex{bad}, Error);
+  EXPECT_THROW_WITH_MESSAGE(HammingIndex{bad}, Error, "code 1", "padding bits");
   BinaryCodes ragged = RandomCodes(64, 3, 4);
   ragged.words_per_code = 2;  // inconsistent with bits
-  EXPECT_THROW(HammingIndex{ragged}, Error);
+  EXPECT_THROW_WITH_MESSAGE(HammingIndex{ragged}, Error, "64 bits", "got 2");
   HammingSearchOptions options;
   options.block_bytes = 10;
-  EXPECT_THROW(HammingIndex(database, options), Error);
+  EXPECT_THROW_WITH_MESSAGE(HammingIndex(database, options), Error, "block_bytes", "got 10");
   for (PopcountKernel kernel : {PopcountKernel::kAvx2, PopcountKernel::kAvx512}) {
     if (!PopcountKernelAvailable(kernel)) {
       HammingSearchOptions unsupported;
       unsupported.kernel = kernel;
-      EXPECT_THROW(HammingIndex(database, unsupported), Error);
+      EXPECT_THROW_WITH_MESSAGE(HammingIndex(database, unsupported), Error,
+                                "'" + ToString(kernel) + "'", "not supported by this CPU");
     }
   }
 }

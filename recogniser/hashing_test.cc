@@ -11,6 +11,7 @@
 
 #include "core/error.h"
 #include "recogniser/hamming_search.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -264,24 +265,27 @@ TEST_F(HashingQualityTest, SerializeRoundTripGivesIdenticalCodes) {
     EXPECT_EQ(restored.Serialize(), bytes);
     // Every truncation is a clear error, never a crash or a half-read hasher.
     for (size_t size = 0; size < bytes.size(); size += std::max<size_t>(1, bytes.size() / 97)) {
-      EXPECT_THROW(Hasher::Deserialize(bytes.data(), size), Error) << size;
+      EXPECT_THROW_WITH_MESSAGE(Hasher::Deserialize(bytes.data(), size), Error,
+                                "hasher data truncated")
+          << size;
     }
-    EXPECT_THROW(Hasher::Deserialize(bytes.data(), bytes.size() - 1), Error);
+    EXPECT_THROW_WITH_MESSAGE(Hasher::Deserialize(bytes.data(), bytes.size() - 1), Error,
+                              "hasher data truncated");
     std::vector<uint8_t> longer = bytes;
     longer.push_back(0);
-    EXPECT_THROW(Hasher::Deserialize(longer), Error);
+    EXPECT_THROW_WITH_MESSAGE(Hasher::Deserialize(longer), Error, "1 trailing bytes");
   }
   std::vector<uint8_t> bytes = trained_->at(HashMethod::kLsh).hasher.Serialize();
   std::vector<uint8_t> bad_magic = bytes;
   bad_magic[0] = 'X';
-  EXPECT_THROW(Hasher::Deserialize(bad_magic), Error);
+  EXPECT_THROW_WITH_MESSAGE(Hasher::Deserialize(bad_magic), Error, "bad magic");
   std::vector<uint8_t> bad_version = bytes;
   bad_version[8] = 99;
-  EXPECT_THROW(Hasher::Deserialize(bad_version), Error);
+  EXPECT_THROW_WITH_MESSAGE(Hasher::Deserialize(bad_version), Error, "format version 99");
   std::vector<uint8_t> bad_method = bytes;
   bad_method[12] = 17;
-  EXPECT_THROW(Hasher::Deserialize(bad_method), Error);
-  EXPECT_THROW(Hasher::Deserialize(nullptr, 0), Error);
+  EXPECT_THROW_WITH_MESSAGE(Hasher::Deserialize(bad_method), Error, "hash method id 17");
+  EXPECT_THROW_WITH_MESSAGE(Hasher::Deserialize(nullptr, 0), Error, "hasher data truncated");
 }
 
 TEST(HashingTest, CodesAreDeterministicForASeed) {
@@ -408,11 +412,11 @@ TEST(HashingTest, EnumNamesRoundTrip) {
   EXPECT_EQ(ToString(HashMethod::kSpectral), "sh");
   EXPECT_EQ(ToString(HashMethod::kMinimalLoss), "mlh");
   EXPECT_EQ(ToString(HashMethod::kBinaryReconstructive), "bre");
-  EXPECT_THROW(HashMethodFromString("pq"), Error);
+  EXPECT_THROW_WITH_MESSAGE(HashMethodFromString("pq"), Error, "'pq'");
   for (BreKernel kernel : {BreKernel::kLinear, BreKernel::kGaussian}) {
     EXPECT_EQ(BreKernelFromString(ToString(kernel)), kernel);
   }
-  EXPECT_THROW(BreKernelFromString("rbf"), Error);
+  EXPECT_THROW_WITH_MESSAGE(BreKernelFromString("rbf"), Error, "'rbf'");
 }
 
 TEST(HashingTest, InvalidOptionsAndInputsThrow) {
@@ -422,41 +426,56 @@ TEST(HashingTest, InvalidOptionsAndInputsThrow) {
     mutate(options);
     return Hasher::Train(features, options);
   };
-  EXPECT_THROW(train_with([](HashOptions& o) { o.bits = 7; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.bits = 257; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.max_training_samples = 1; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.lsh.threshold_spread = -1.0; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.mlh.margin_fraction = 1.0; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.mlh.lambda = 0.0; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.mlh.learning_rate = -0.1; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.mlh.momentum = 1.0; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.mlh.pairs_per_batch = 1; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.bre.anchors = 0; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.bre.bandwidth_scale = 0.0; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.bre.neighbours = 0; }), Error);
-  EXPECT_THROW(train_with([](HashOptions& o) { o.itq.iterations = -1; }), Error);
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.bits = 7; }), Error, "bits", "got 7");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.bits = 257; }), Error, "bits",
+                            "got 257");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.max_training_samples = 1; }), Error,
+                            "max_training_samples", "got 1");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.lsh.threshold_spread = -1.0; }),
+                            Error, "threshold_spread", "got -1");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.mlh.margin_fraction = 1.0; }), Error,
+                            "margin_fraction", "got 1");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.mlh.lambda = 0.0; }), Error, "lambda",
+                            "got 0");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.mlh.learning_rate = -0.1; }), Error,
+                            "learning_rate", "got -0.1");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.mlh.momentum = 1.0; }), Error,
+                            "momentum", "got 1");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.mlh.pairs_per_batch = 1; }), Error,
+                            "pairs_per_batch", "got 1");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.bre.anchors = 0; }), Error, "anchors",
+                            "got 0");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.bre.bandwidth_scale = 0.0; }), Error,
+                            "bandwidth_scale", "got 0");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.bre.neighbours = 0; }), Error,
+                            "neighbours", "got 0");
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) { o.itq.iterations = -1; }), Error,
+                            "iterations", "got -1");
   // An option of another method is checked too: options are validated as a whole.
-  EXPECT_THROW(train_with([](HashOptions& o) {
-                 o.method = HashMethod::kLsh;
-                 o.bre.training_points = 1;
-               }),
-               Error);
+  EXPECT_THROW_WITH_MESSAGE(train_with([](HashOptions& o) {
+                              o.method = HashMethod::kLsh;
+                              o.bre.training_points = 1;
+                            }),
+                            Error, "training_points", "got 1");
 
   HashOptions options;
   options.method = HashMethod::kLsh;
-  EXPECT_THROW(Hasher::Train(Eigen::MatrixXf::Random(1, 8), options), Error);
-  EXPECT_THROW(Hasher::Train(Eigen::MatrixXf(10, 0), options), Error);
+  EXPECT_THROW_WITH_MESSAGE(Hasher::Train(Eigen::MatrixXf::Random(1, 8), options), Error,
+                            "feature rows", "got 1");
+  EXPECT_THROW_WITH_MESSAGE(Hasher::Train(Eigen::MatrixXf(10, 0), options), Error, "feature column",
+                            "got 0");
   Eigen::MatrixXf with_nan = features;
   with_nan(3, 4) = std::numeric_limits<float>::quiet_NaN();
-  EXPECT_THROW(Hasher::Train(with_nan, options), Error);
+  EXPECT_THROW_WITH_MESSAGE(Hasher::Train(with_nan, options), Error, "NaN or infinity");
 
   const Hasher hasher = Hasher::Train(features, options);
-  EXPECT_THROW(hasher.Encode(Eigen::MatrixXf::Random(5, 9)), Error);
+  EXPECT_THROW_WITH_MESSAGE(hasher.Encode(Eigen::MatrixXf::Random(5, 9)), Error,
+                            "8 feature columns", "got 9");
   EXPECT_EQ(hasher.Encode(Eigen::MatrixXf(0, 8)).size(), 0);
   const Hasher untrained;
   EXPECT_FALSE(untrained.trained());
-  EXPECT_THROW(untrained.Encode(features), Error);
-  EXPECT_THROW(untrained.Serialize(), Error);
+  EXPECT_THROW_WITH_MESSAGE(untrained.Encode(features), Error, "untrained");
+  EXPECT_THROW_WITH_MESSAGE(untrained.Serialize(), Error, "untrained");
 }
 
 }  // namespace

@@ -97,14 +97,21 @@ const std::vector<OptionField<PoseOptions>>& PoseOptions::Fields() {
 }
 
 void PoseOptions::Check() const {
+  SOPE_CHECK(final_gate > 0.0 && initial_gate_fraction >= 0.0,
+             "pose: final_gate must be > 0 m and initial_gate_fraction ≥ 0, got {} and {}",
+             final_gate, initial_gate_fraction);
   CheckFields(*this, Fields(), "pose: ");
   for (size_t i = 0; i < ring_edges.size(); ++i) {
     SOPE_CHECK(ring_edges[i] > 0.0f && (i == 0 || ring_edges[i] > ring_edges[i - 1]),
-               "pose: ring_edges must be positive and increasing");
+               "pose: ring_edges must be positive and increasing, got ring_edges[{}] = {}", i,
+               ring_edges[i]);
   }
   SOPE_CHECK(roll_hypotheses <= angle_bins / 2,
              "pose: roll_hypotheses must be in [1, angle_bins/2], got {}", roll_hypotheses);
-  SOPE_CHECK(initial_window >= final_window, "pose: need 0 ≤ final_window ≤ initial_window");
+  SOPE_CHECK(initial_window >= final_window,
+             "pose: need 0 ≤ final_window ≤ initial_window, got final_window {} and "
+             "initial_window {}",
+             final_window, initial_window);
 }
 
 // ---- ProjectiveGrid ------------------------------------------------------------------------

@@ -14,6 +14,7 @@
 #include "recogniser/viewpoints.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/virtual_rig.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -36,7 +37,8 @@ TEST(CamFromCanonical, TakesTheOpticalAxisToTheDirection) {
       EXPECT_NEAR(axis_angle.angle(), std::acos(direction.normalized().z()), 1e-9);
     }
   }
-  EXPECT_THROW(CamFromCanonical(Eigen::Vector3d::Zero()), Error);
+  EXPECT_THROW_WITH_MESSAGE(CamFromCanonical(Eigen::Vector3d::Zero()), Error,
+                            "direction must be finite and non-zero");
 }
 
 TEST(ProjectiveGrid, NearestMatchesBruteForceWithinTheWindow) {
@@ -280,17 +282,17 @@ TEST(PoseOptions, CheckRejectsInvalidValues) {
   PoseOptions options;
   options.Check();
   options.angle_bins = 4;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "angle_bins", "got 4");
   options = PoseOptions();
   options.ring_edges = {0.5f, 0.3f};
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "ring_edges", "ring_edges[1] = 0.3");
   options = PoseOptions();
   options.final_gate = 0.0;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "final_gate", "got 0 and");
   options = PoseOptions();
   options.initial_window = 0;
   options.final_window = 1;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "final_window 1", "initial_window 0");
 }
 
 }  // namespace

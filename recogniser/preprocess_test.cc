@@ -33,6 +33,7 @@
 #include "simulator/primitives.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/virtual_rig.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -172,7 +173,7 @@ TEST(Preprocess, RejectsBadInputsWithOneClearLine) {
 
   PointCloud mismatched = thinned;
   mismatched.normals.assign(10, Vector3f::UnitZ());
-  EXPECT_THROW(Preprocess(mismatched), Error);
+  EXPECT_THROW_WITH_MESSAGE(Preprocess(mismatched), Error, "10 normals for");
 
   PreprocessOptions invalid;
   invalid.normal_neighbours = 1;
@@ -264,7 +265,7 @@ TEST(VoxelGrid, MatchesPclVoxelGridIncludingOrder) {
     for (uint32_t c : counts) total += c;
     EXPECT_EQ(total, points.size());
   }
-  EXPECT_THROW(internal::VoxelGridCentroids(points, 0.0f), Error);
+  EXPECT_THROW_WITH_MESSAGE(internal::VoxelGridCentroids(points, 0.0f), Error, "leaf", "got 0");
 }
 
 TEST(NeighbourGrid, AllKNearestEqualsBruteForce) {

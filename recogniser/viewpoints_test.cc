@@ -6,6 +6,7 @@
 
 #include "core/error.h"
 #include "core/units.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -51,7 +52,8 @@ TEST(Viewpoints, ThesisLayoutHas18OnFiveRings) {
     }
   }
   EXPECT_EQ(MakeViewpoints(ViewpointLayout::kThesis18, 18).size(), 18u);
-  EXPECT_THROW(MakeViewpoints(ViewpointLayout::kThesis18, 20), Error);
+  EXPECT_THROW_WITH_MESSAGE(MakeViewpoints(ViewpointLayout::kThesis18, 20), Error, "18 viewpoints",
+                            "20 requested");
 }
 
 TEST(Viewpoints, FibonacciCoversTheSphereEvenly) {
@@ -88,14 +90,15 @@ TEST(Viewpoints, FibonacciCoversTheSphereEvenly) {
     }
     EXPECT_LT(worst, 0.9 * spacing) << n;
   }
-  EXPECT_THROW(FibonacciViewpoints(0), Error);
+  EXPECT_THROW_WITH_MESSAGE(FibonacciViewpoints(0), Error, "count", "got 0");
 }
 
 TEST(Viewpoints, PosesLookAtTheCentre) {
   const Eigen::Vector3d center(0.01, -0.02, 0.07);
   for (const Viewpoint& v : ThesisViewpoints()) ExpectLooksAtCentre(v, 0.6, center);
   for (const Viewpoint& v : FibonacciViewpoints(300)) ExpectLooksAtCentre(v, 0.45, center);
-  EXPECT_THROW(CameraPoseForViewpoint(Viewpoint{1.0, 1.0}, 0.0, center), Error);
+  EXPECT_THROW_WITH_MESSAGE(CameraPoseForViewpoint(Viewpoint{1.0, 1.0}, 0.0, center), Error,
+                            "distance", "got 0");
 }
 
 TEST(Viewpoints, PolesAreContinuousAlongTheMeridian) {
@@ -123,7 +126,7 @@ TEST(Viewpoints, LayoutNames) {
   EXPECT_EQ(ViewpointLayoutFromString(ToString(ViewpointLayout::kThesis18)),
             ViewpointLayout::kThesis18);
   EXPECT_EQ(ViewpointLayoutFromString("fibonacci"), ViewpointLayout::kFibonacci);
-  EXPECT_THROW(ViewpointLayoutFromString("grid"), Error);
+  EXPECT_THROW_WITH_MESSAGE(ViewpointLayoutFromString("grid"), Error, "'grid'");
 }
 
 }  // namespace

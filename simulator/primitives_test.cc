@@ -9,6 +9,7 @@
 
 #include "core/error.h"
 #include "core/units.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -149,15 +150,16 @@ TEST(Primitives, TorusIsWatertightWithNearAnalyticVolume) {
 }
 
 TEST(Primitives, InvalidParametersThrow) {
-  EXPECT_THROW(MakePlane(0.0, 1.0, 1), Error);
-  EXPECT_THROW(MakePlane(1.0, 1.0, 0), Error);
-  EXPECT_THROW(MakeSphere(-1.0, 8, 8), Error);
-  EXPECT_THROW(MakeSphere(1.0, 1, 8), Error);
-  EXPECT_THROW(MakeSphere(1.0, 8, 2), Error);
-  EXPECT_THROW(MakeBox(1.0, 0.0, 1.0), Error);
-  EXPECT_THROW(MakeCylinder(1.0, 1.0, 2), Error);
-  EXPECT_THROW(MakeTorus(0.1, 0.2), Error);
-  EXPECT_THROW(MakeTorus(0.2, 0.1, 2, 8), Error);
+  EXPECT_THROW_WITH_MESSAGE(MakePlane(0.0, 1.0, 1), Error, "MakePlane", "got 0x1");
+  EXPECT_THROW_WITH_MESSAGE(MakePlane(1.0, 1.0, 0), Error, "MakePlane", "subdivisions", "got 0");
+  EXPECT_THROW_WITH_MESSAGE(MakeSphere(-1.0, 8, 8), Error, "MakeSphere", "radius", "got -1");
+  EXPECT_THROW_WITH_MESSAGE(MakeSphere(1.0, 1, 8), Error, "MakeSphere", "got 1 and 8");
+  EXPECT_THROW_WITH_MESSAGE(MakeSphere(1.0, 8, 2), Error, "MakeSphere", "got 8 and 2");
+  EXPECT_THROW_WITH_MESSAGE(MakeBox(1.0, 0.0, 1.0), Error, "MakeBox", "got 1x0x1");
+  EXPECT_THROW_WITH_MESSAGE(MakeCylinder(1.0, 1.0, 2), Error, "MakeCylinder", "segments", "got 2");
+  EXPECT_THROW_WITH_MESSAGE(MakeTorus(0.1, 0.2), Error, "MakeTorus", "got 0.1 and 0.2");
+  EXPECT_THROW_WITH_MESSAGE(MakeTorus(0.2, 0.1, 2, 8), Error, "MakeTorus", "segments",
+                            "got 2 and 8");
 }
 
 }  // namespace

@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 #include <filesystem>
 #include <limits>
 #include <map>
@@ -11,7 +10,6 @@
 
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
-#include <opencv2/imgproc.hpp>
 
 #include "core/camera_model.h"
 #include "core/error.h"
@@ -136,13 +134,13 @@ TEST(ProceduralObjectOptions, InvalidValuesThrow) {
   ProceduralObjectOptions options;
   EXPECT_NO_THROW(options.Check());
   options.segments = 7;
-  EXPECT_THROW(options.Check(), Error);
-  EXPECT_THROW(MakeObject(ObjectClass::kMug, 0, options), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "segments", "got 7");
+  EXPECT_THROW_WITH_MESSAGE(MakeObject(ObjectClass::kMug, 0, options), Error, "segments", "got 7");
   options = {};
   options.profile_tolerance = 0.0;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "profile_tolerance", "got 0");
   options.profile_tolerance = std::numeric_limits<double>::quiet_NaN();
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "profile_tolerance", "got nan");
 }
 
 // ------------------------------------------------------------------------------------
@@ -164,9 +162,12 @@ TEST(Lathe, ClockwiseProfileGivesInwardFacesAndBadProfilesThrow) {
   // Reversed profile: same solid, faces inward (negative volume) — the orientation rule.
   const TriangleMesh reversed = internal::Lathe({{0, 0.1}, {0.04, 0.1}, {0.04, 0}, {0, 0}}, 32);
   EXPECT_LT(SignedVolume(reversed), 0.0);
-  EXPECT_THROW(internal::Lathe({{0.01, 0}, {0.04, 0}, {0, 0.1}}, 32), Error);  // off axis
-  EXPECT_THROW(internal::Lathe({{0, 0}, {0, 0.05}, {0, 0.1}}, 32), Error);     // on axis
-  EXPECT_THROW(internal::Lathe({{0, 0}, {0.04, 0}, {0, 0.1}}, 2), Error);
+  EXPECT_THROW_WITH_MESSAGE(internal::Lathe({{0.01, 0}, {0.04, 0}, {0, 0.1}}, 32), Error, "Lathe",
+                            "r = 0.01");  // off axis
+  EXPECT_THROW_WITH_MESSAGE(internal::Lathe({{0, 0}, {0, 0.05}, {0, 0.1}}, 32), Error, "Lathe",
+                            "profile point 1");  // on axis
+  EXPECT_THROW_WITH_MESSAGE(internal::Lathe({{0, 0}, {0.04, 0}, {0, 0.1}}, 2), Error, "Lathe",
+                            "segments", "got 2");
 }
 
 TEST(Lathe, SemicircleProfileApproachesTheSphereVolume) {
@@ -262,8 +263,10 @@ TEST(ProfileBuilder, RoundedSquareCornerIsTangentAndNearTheCircle) {
   EXPECT_TRUE(ends_at_tangent_point);
   // A circular fillet passes (√2 − 1)·ρ from the corner; the quadratic Bézier ρ·√2/4.
   EXPECT_NEAR(closest_to_corner, std::sqrt(2.0) / 4.0 * radius, 1e-5);
-  EXPECT_THROW(internal::ProfileBuilder({0, 0}).Round(0.001), Error);
-  EXPECT_THROW(internal::ProfileBuilder({0, 0}).PolylineTo({{0.01, 0}, {0.02, 0}}), Error);
+  EXPECT_THROW_WITH_MESSAGE(internal::ProfileBuilder({0, 0}).Round(0.001), Error, "Round",
+                            "no piece before the joint");
+  EXPECT_THROW_WITH_MESSAGE(internal::ProfileBuilder({0, 0}).PolylineTo({{0.01, 0}, {0.02, 0}}),
+                            Error, "PolylineTo", "starts at (0.01, 0)");
 }
 
 TEST(SweepTube, StraightCircularTubeIsAPrism) {
@@ -300,8 +303,10 @@ TEST(RoundedBox, SizeVolumeAndWatertightness) {
   const double volume = SignedVolume(box);
   EXPECT_LT(volume, polygonal_edges);
   EXPECT_NEAR(volume, polygonal_edges, 3e-8);
-  EXPECT_THROW(internal::MakeRoundedBox(size, 0.0, 3), Error);
-  EXPECT_THROW(internal::MakeRoundedBox(size, 0.03, 3), Error);
+  EXPECT_THROW_WITH_MESSAGE(internal::MakeRoundedBox(size, 0.0, 3), Error, "MakeRoundedBox",
+                            "radius 0 for 0.2x0.1x0.05");
+  EXPECT_THROW_WITH_MESSAGE(internal::MakeRoundedBox(size, 0.03, 3), Error, "MakeRoundedBox",
+                            "radius 0.03 for 0.2x0.1x0.05");
 }
 
 // ------------------------------------------------------------------------------------
@@ -555,8 +560,9 @@ TEST(WriteProceduralModels, WritesTheModelsTreeReadableBack) {
     entries += entry.is_regular_file() ? 1 : 0;
   }
   EXPECT_EQ(entries, static_cast<int>(paths.size()));
-  EXPECT_THROW(WriteProceduralModels(dir, 0, 0), Error);
-  EXPECT_THROW(WriteProceduralModels("", 1, 0), Error);
+  EXPECT_THROW_WITH_MESSAGE(WriteProceduralModels(dir, 0, 0), Error, "instances_per_class",
+                            "got 0");
+  EXPECT_THROW_WITH_MESSAGE(WriteProceduralModels("", 1, 0), Error, "empty directory name");
 }
 
 TEST(LoadMeshSpec, BuiltinObjectClassesAndSeeds) {
@@ -567,135 +573,9 @@ TEST(LoadMeshSpec, BuiltinObjectClassesAndSeeds) {
   // "box" stays the primitive box; the procedural box needs its seed.
   EXPECT_EQ(LoadMeshSpec("builtin:box").vertices.size(), 8u);
   EXPECT_TRUE(LoadMeshSpec("builtin:box:0").vertices == MakeObject(ObjectClass::kBox, 0).vertices);
-  EXPECT_THROW(LoadMeshSpec("builtin:mug:x"), Error);
-  EXPECT_THROW(LoadMeshSpec("builtin:mug:-1"), Error);
-  EXPECT_THROW(LoadMeshSpec("builtin:teapot"), Error);
-}
-
-// ------------------------------------------------------------------------------------
-// Visual check (not an assertion): with SOPE_CONTACT_SHEET_DIR set, renders instances of
-// every class with the depth renderer from 35° and 75° elevation, normal-shaded
-// (colour = 128 + 127·normal, camera frame), and their profiles, into PNG contact sheets.
-
-// Normal-shaded view from `elevation`, `azimuth` (radians) at `distance` metres (0: by
-// the object's size), cropped to the object unless `crop` is false.
-cv::Mat ShadedView(DepthRenderer* renderer, const CameraModel& camera, const TriangleMesh& mesh,
-                   double elevation, double azimuth, double distance = 0.0, bool crop = true) {
-  const Box3 bounds = BoundsOf(mesh);
-  const Vector3d center = 0.5 * (bounds.lo + bounds.hi);
-  if (distance <= 0) distance = std::max(0.45, 1.7 * bounds.extent().norm());
-  const Vector3d eye =
-      center + distance * Vector3d(std::cos(elevation) * std::cos(azimuth),
-                                   std::cos(elevation) * std::sin(azimuth), std::sin(elevation));
-  const Vector3d forward = (center - eye).normalized();
-  const Vector3d right = forward.cross(Vector3d::UnitZ()).normalized();
-  const Vector3d down = forward.cross(right);
-  Eigen::Matrix3d rotation;
-  rotation.row(0) = right;
-  rotation.row(1) = down;
-  rotation.row(2) = forward;
-  renderer->SetMesh(mesh);
-  const PointCloud cloud = renderer->Render(Rigid3d(rotation, -rotation * eye));
-  cv::Mat image(camera.height, camera.width, CV_8UC3, cv::Scalar(40, 40, 40));
-  cv::Rect used;
-  for (size_t i = 0; i < cloud.size(); ++i) {
-    const Eigen::Vector2d pixel = camera.ImageFromCam(cloud.points[i].cast<double>());
-    const int x = static_cast<int>(std::lround(pixel.x())),
-              y = static_cast<int>(std::lround(pixel.y()));
-    if (x < 0 || y < 0 || x >= camera.width || y >= camera.height) continue;
-    const Eigen::Vector3f& n = cloud.normals[i];
-    image.at<cv::Vec3b>(y, x) = cv::Vec3b(cv::saturate_cast<uchar>(128 - 127 * n.z()),
-                                          cv::saturate_cast<uchar>(128 + 127 * n.y()),
-                                          cv::saturate_cast<uchar>(128 + 127 * n.x()));
-    used |= cv::Rect(x, y, 1, 1);
-  }
-  if (!crop) return image;
-  // A square crop around the object, so small objects show their detail.
-  const int side = std::max(used.width, used.height) + 20;
-  const cv::Point middle = (used.tl() + used.br()) / 2;
-  const cv::Rect window = cv::Rect(middle.x - side / 2, middle.y - side / 2, side, side) &
-                          cv::Rect(0, 0, camera.width, camera.height);
-  cv::Mat tile;
-  cv::resize(image(window), tile, cv::Size(320, 320), 0, 0, cv::INTER_AREA);
-  return tile;
-}
-
-cv::Mat ProfileView(const std::vector<Vector2d>& profile, int size) {
-  cv::Mat image(size, size, CV_8UC3, cv::Scalar(255, 255, 255));
-  if (profile.empty()) return image;
-  double r_max = 0, z_max = 0;
-  for (const Vector2d& p : profile) {
-    r_max = std::max(r_max, p.x());
-    z_max = std::max(z_max, p.y());
-  }
-  const double scale = 0.9 * size / std::max(2 * r_max, z_max);
-  std::vector<cv::Point> left, right;
-  for (const Vector2d& p : profile) {
-    const int y = static_cast<int>(0.95 * size - scale * p.y());
-    right.emplace_back(static_cast<int>(size / 2 + scale * p.x()), y);
-    left.emplace_back(static_cast<int>(size / 2 - scale * p.x()), y);
-  }
-  cv::fillPoly(image, std::vector<std::vector<cv::Point>>{right}, cv::Scalar(200, 120, 60));
-  cv::fillPoly(image, std::vector<std::vector<cv::Point>>{left}, cv::Scalar(200, 120, 60));
-  return image;
-}
-
-TEST(ProceduralObjects, ContactSheets) {
-  const char* out = std::getenv("SOPE_CONTACT_SHEET_DIR");
-  if (out == nullptr) GTEST_SKIP() << "set SOPE_CONTACT_SHEET_DIR to render contact sheets";
-  const CameraModel camera = MakePinhole(640, 480, 50.0 * kPi / 180.0);
-  DepthRenderer renderer(camera);
-  const int columns = 6;
-  const int first_seed = std::getenv("SOPE_CONTACT_SHEET_SEED") != nullptr
-                             ? std::atoi(std::getenv("SOPE_CONTACT_SHEET_SEED"))
-                             : 0;
-  for (ObjectClass cls : AllObjectClasses()) {
-    std::vector<cv::Mat> rows;
-    for (const double elevation_deg : {35.0, 75.0, 5.0}) {
-      std::vector<cv::Mat> tiles;
-      for (int k = 0; k < columns; ++k) {
-        const double azimuth = (-70.0 + 35.0 * k) * kPi / 180.0;
-        cv::Mat tile = ShadedView(&renderer, camera, MakeObject(cls, first_seed + k),
-                                  elevation_deg * kPi / 180.0, azimuth);
-        cv::putText(tile, fmt::format("{} {} el {}", ToString(cls), first_seed + k, elevation_deg),
-                    {6, 20}, cv::FONT_HERSHEY_SIMPLEX, 0.55, cv::Scalar(255, 255, 255), 1);
-        tiles.push_back(tile);
-      }
-      cv::Mat row;
-      cv::hconcat(tiles, row);
-      rows.push_back(row);
-    }
-    std::vector<cv::Mat> profiles;
-    for (int k = 0; k < columns; ++k) {
-      profiles.push_back(
-          ProfileView(internal::MakeObjectParts(cls, first_seed + k, {}).profile, 320));
-    }
-    cv::Mat profile_row;
-    cv::hconcat(profiles, profile_row);
-    rows.push_back(profile_row);
-    cv::Mat sheet;
-    cv::vconcat(rows, sheet);
-    WriteImageAtomic(JoinPath(out, ToString(cls) + ".png"), sheet);
-  }
-  // All classes at one scale: 0.8 m away, 35° up, the central 400×400 pixels.
-  std::vector<cv::Mat> rows(2);
-  for (size_t i = 0; i < AllObjectClasses().size(); ++i) {
-    const ObjectClass cls = AllObjectClasses()[i];
-    cv::Mat tile = ShadedView(&renderer, camera, MakeObject(cls, first_seed), 35.0 * kPi / 180.0,
-                              -30.0 * kPi / 180.0, 0.8, false)(cv::Rect(120, 40, 400, 400))
-                       .clone();
-    cv::putText(tile, ToString(cls), {6, 20}, cv::FONT_HERSHEY_SIMPLEX, 0.6,
-                cv::Scalar(255, 255, 255), 1);
-    cv::Mat& row = rows[i / 5];
-    if (row.empty()) {
-      row = tile;
-    } else {
-      cv::hconcat(row, tile, row);
-    }
-  }
-  cv::Mat overview;
-  cv::vconcat(rows, overview);
-  WriteImageAtomic(JoinPath(out, "overview.png"), overview);
+  EXPECT_THROW_WITH_MESSAGE(LoadMeshSpec("builtin:mug:x"), Error, "'mug:x'", "seed 'x'");
+  EXPECT_THROW_WITH_MESSAGE(LoadMeshSpec("builtin:mug:-1"), Error, "'mug:-1'", "seed '-1'");
+  EXPECT_THROW_WITH_MESSAGE(LoadMeshSpec("builtin:teapot"), Error, "'teapot'");
 }
 
 }  // namespace

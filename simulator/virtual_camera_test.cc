@@ -144,10 +144,10 @@ TEST(VirtualCamera, RefusesADisplayOfAnotherSizeAndBadOptions) {
               HasSubstr("virtual display is 1024x768 but the virtual rig's projector is 256x192"));
   VirtualCameraOptions options;
   options.frame_period = 0;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "frame period 0");
   options = VirtualCameraOptions();
   options.readout_jitter = 1.0;
-  EXPECT_THROW(options.Check(), Error);
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "readout jitter 1");
 }
 
 TEST(MakeDemoScene, AMugBeforeABackdrop) {

@@ -727,8 +727,8 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
              "VirtualRig::Capture: projector image is {}x{}, the projector is {}x{}",
              projector_image.cols, projector_image.rows, projector.width, projector.height);
   SOPE_CHECK(projector_image.type() == CV_8UC1 || projector_image.type() == CV_32FC1,
-             "VirtualRig::Capture: projector image must be CV_8UC1 or CV_32FC1, got type {}",
-             projector_image.type());
+             "VirtualRig::Capture: projector image must be CV_8UC1 or CV_32FC1, got {}",
+             cv::typeToString(projector_image.type()));
   cv::Mat pattern;
   if (projector_image.type() == CV_8UC1) {
     projector_image.convertTo(pattern, CV_32F, 1.0 / 255.0);

@@ -990,40 +990,47 @@ TEST(VirtualRig, BadInputsThrow) {
   const RigCalibration calibration = DefaultRigCalibration();
   SensorOptions bad_options;
   bad_options.supersample = 0;
-  EXPECT_THROW(VirtualRig(calibration, bad_options), Error);
+  EXPECT_THROW_WITH_MESSAGE(VirtualRig(calibration, bad_options), Error, "supersample", "got 0");
   bad_options = SensorOptions();
   bad_options.read_noise = -1.0;
-  EXPECT_THROW(VirtualRig(calibration, bad_options), Error);
+  EXPECT_THROW_WITH_MESSAGE(VirtualRig(calibration, bad_options), Error, "read_noise", "got -1");
   RigCalibration bad_calibration = calibration;
   bad_calibration.camera.matrix(0, 0) = 0.0;
-  EXPECT_THROW(VirtualRig rig(bad_calibration), Error);
+  EXPECT_THROW_WITH_MESSAGE(VirtualRig rig(bad_calibration), Error, "fx=0");
 
   SensorOptions options;
   options.supersample = 1;
   VirtualRig rig(calibration, options);
-  EXPECT_THROW(rig.Capture(cv::Mat(768, 1024, CV_8UC1, cv::Scalar(0))), Error);  // no scene
+  EXPECT_THROW_WITH_MESSAGE(rig.Capture(cv::Mat(768, 1024, CV_8UC1, cv::Scalar(0))), Error,
+                            "SetScene() has not been called");  // no scene
 
   Scene empty_mesh;
   empty_mesh.objects.emplace_back();
-  EXPECT_THROW(rig.SetScene(empty_mesh), Error);
+  EXPECT_THROW_WITH_MESSAGE(rig.SetScene(empty_mesh), Error, "scene object 0", "no faces");
   Scene bad_index;
   bad_index.objects.push_back(FacingPlane(Eigen::Vector3d(0, 0, 0.6), Eigen::Vector3d(0, 0, -1)));
   bad_index.objects[0].mesh.faces.emplace_back(0, 1, 1000);
-  EXPECT_THROW(rig.SetScene(bad_index), Error);
+  EXPECT_THROW_WITH_MESSAGE(rig.SetScene(bad_index), Error, "scene object 0",
+                            "face index out of range");
   Scene bad_albedo;
   bad_albedo.objects.push_back(FacingPlane(Eigen::Vector3d(0, 0, 0.6), Eigen::Vector3d(0, 0, -1)));
   bad_albedo.objects[0].albedo = 1.5;
-  EXPECT_THROW(rig.SetScene(bad_albedo), Error);
+  EXPECT_THROW_WITH_MESSAGE(rig.SetScene(bad_albedo), Error, "scene object 0", "albedo", "got 1.5");
 
   Scene good;
   good.objects.push_back(FacingPlane(Eigen::Vector3d(0, 0, 0.6), Eigen::Vector3d(0, 0, -1)));
   rig.SetScene(good);
-  EXPECT_THROW(rig.Capture(cv::Mat()), Error);
-  EXPECT_THROW(rig.Capture(cv::Mat(768, 1023, CV_8UC1, cv::Scalar(0))), Error);
-  EXPECT_THROW(rig.Capture(cv::Mat(720, 1280, CV_8UC1, cv::Scalar(0))), Error);
-  EXPECT_THROW(rig.Capture(cv::Mat(768, 1024, CV_8UC3, cv::Scalar(0))), Error);
-  EXPECT_THROW(rig.Capture(cv::Mat(768, 1024, CV_16UC1, cv::Scalar(0))), Error);
-  EXPECT_THROW(rig.Capture(cv::Mat(768, 1024, CV_32FC1, cv::Scalar(2.0))), Error);
+  EXPECT_THROW_WITH_MESSAGE(rig.Capture(cv::Mat()), Error, "projector image is 0x0", "1024x768");
+  EXPECT_THROW_WITH_MESSAGE(rig.Capture(cv::Mat(768, 1023, CV_8UC1, cv::Scalar(0))), Error,
+                            "projector image is 1023x768");
+  EXPECT_THROW_WITH_MESSAGE(rig.Capture(cv::Mat(720, 1280, CV_8UC1, cv::Scalar(0))), Error,
+                            "projector image is 1280x720");
+  EXPECT_THROW_WITH_MESSAGE(rig.Capture(cv::Mat(768, 1024, CV_8UC3, cv::Scalar(0))), Error,
+                            "got CV_8UC3");
+  EXPECT_THROW_WITH_MESSAGE(rig.Capture(cv::Mat(768, 1024, CV_16UC1, cv::Scalar(0))), Error,
+                            "got CV_16UC1");
+  EXPECT_THROW_WITH_MESSAGE(rig.Capture(cv::Mat(768, 1024, CV_32FC1, cv::Scalar(2.0))), Error,
+                            "pixel (0, 0) is 2");
   const cv::Mat ok = rig.Capture(cv::Mat(768, 1024, CV_8UC1, cv::Scalar(0)));
   EXPECT_EQ(ok.type(), CV_8UC1);
 }
@@ -1031,13 +1038,14 @@ TEST(VirtualRig, BadInputsThrow) {
 TEST(DepthRenderer, BadInputsThrow) {
   CameraModel bad_camera = MakePinhole(320, 240, 1.0);
   bad_camera.width = 0;
-  EXPECT_THROW(DepthRenderer renderer(bad_camera), Error);
+  EXPECT_THROW_WITH_MESSAGE(DepthRenderer renderer(bad_camera), Error, "image size 0x240");
   DepthRenderer renderer(MakePinhole(320, 240, 1.0));
-  EXPECT_THROW(renderer.Render(Rigid3d()), Error);  // no mesh
-  EXPECT_THROW(renderer.SetMesh(TriangleMesh()), Error);
+  EXPECT_THROW_WITH_MESSAGE(renderer.Render(Rigid3d()), Error,
+                            "SetMesh() has not been called");  // no mesh
+  EXPECT_THROW_WITH_MESSAGE(renderer.SetMesh(TriangleMesh()), Error, "SetMesh", "no faces");
   TriangleMesh non_finite = MakeBox(0.1, 0.1, 0.1);
   non_finite.vertices[3].x() = std::numeric_limits<float>::quiet_NaN();
-  EXPECT_THROW(renderer.SetMesh(non_finite), Error);
+  EXPECT_THROW_WITH_MESSAGE(renderer.SetMesh(non_finite), Error, "SetMesh", "non-finite vertex");
 }
 
 }  // namespace

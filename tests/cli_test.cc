@@ -8,6 +8,8 @@
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "core/file_util.h"
 #include "core/frame_set.h"
@@ -172,6 +174,67 @@ TEST_F(Cli, CalibrationThatDoesNotFitTheFrames) {
                           local_),
                      "scan", "broken.yaml");
   EXPECT_FALSE(fs::exists(local_.File("c.ply")));
+}
+
+// `sope objects --contact-sheet DIR`: one PNG per class plus an overview, each a real
+// picture (the shaded rows hold the rendered objects, the last row their profiles).
+TEST_F(Cli, ObjectsContactSheets) {
+  const std::string dir = local_.File("sheets");
+  const SopeRun run = Sope("objects --instances 2 --seed 5 --contact-sheet " + dir, local_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_FALSE(fs::exists(local_.File("models")));  // no --out: no models written
+  for (const char* name : {"mug", "bottle", "bowl", "box", "can", "glass", "plate", "vase",
+                           "wine_glass", "saucepan"}) {
+    SCOPED_TRACE(name);
+    const std::string path = dir + "/" + name + ".png";
+    ASSERT_TRUE(fs::is_regular_file(path));
+    EXPECT_GT(fs::file_size(path), 20000u);  // 640×1280 colour, mostly not flat
+    const cv::Mat sheet = ReadImage(path, cv::IMREAD_COLOR);
+    // Two instances in columns of 320 px; three shaded views and the profile in rows.
+    ASSERT_EQ(sheet.cols, 2 * 320);
+    ASSERT_EQ(sheet.rows, 4 * 320);
+    // Not blank: in the shaded rows, a good share of pixels are neither the background
+    // grey nor the label's white; in the profile row, the filled silhouette is there (lathe
+    // classes).
+    int object = 0, silhouette = 0;
+    for (int y = 0; y < sheet.rows; ++y) {
+      for (int x = 0; x < sheet.cols; ++x) {
+        const cv::Vec3b bgr = sheet.at<cv::Vec3b>(y, x);
+        if (y < 3 * 320) {
+          object += bgr != cv::Vec3b(40, 40, 40) && bgr != cv::Vec3b(255, 255, 255);
+        } else {
+          silhouette += bgr == cv::Vec3b(200, 120, 60);
+        }
+      }
+    }
+    EXPECT_GT(object, 3 * 320 * 640 / 20);
+    // The box is no lathe object: it has no profile to draw.
+    if (std::string(name) != "box") EXPECT_GT(silhouette, 320 * 640 / 50);
+  }
+  const std::string overview = dir + "/overview.png";
+  ASSERT_TRUE(fs::is_regular_file(overview));
+  const cv::Mat image = ReadImage(overview, cv::IMREAD_COLOR);
+  EXPECT_EQ(image.cols, 5 * 400);
+  EXPECT_EQ(image.rows, 2 * 400);
+  cv::Mat grey;
+  cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(grey, mean, stddev);
+  EXPECT_GT(stddev[0], 5.0);
+  // Atomic writes leave no temporary files behind.
+  int entries = 0;
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    ++entries;
+    EXPECT_EQ(entry.path().extension(), ".png") << entry.path();
+  }
+  EXPECT_EQ(entries, 11);
+}
+
+TEST_F(Cli, ObjectsNeedsAnOutput) {
+  ExpectOneLineError(Sope("objects --instances 2", local_), "objects", "--contact-sheet");
+  ExpectOneLineError(Sope("objects --instances 0 --contact-sheet " + local_.File("s"), local_),
+                     "objects", "got 0");
+  EXPECT_FALSE(fs::exists(local_.File("s")));
 }
 
 }  // namespace

@@ -44,8 +44,10 @@ TEST(ListModels, ClassDirectoriesAndFlatFiles) {
   EXPECT_EQ(fs::path(models[2].path).filename(), "teapot.off");
 
   fs::create_directories(scratch.File("empty"));
-  EXPECT_THROW(ListModels(scratch.File("empty")), Error);
-  EXPECT_THROW(ListModels(scratch.File("missing")), Error);
+  EXPECT_THROW_WITH_MESSAGE(ListModels(scratch.File("empty")), Error, scratch.File("empty"),
+                            "holds no mesh");
+  EXPECT_THROW_WITH_MESSAGE(ListModels(scratch.File("missing")), Error, scratch.File("missing"),
+                            "does not exist");
 }
 
 TEST(SizeNormalisation, ImplausibleSizesAreScaled) {
@@ -186,7 +188,8 @@ TEST_F(BuildDatabaseTest, NoReadableMeshIsAnError) {
   }
   DatabaseOptions invalid = SmallOptions(4);
   invalid.views_per_model = 0;
-  EXPECT_THROW(BuildDatabase(scratch_->File("models"), invalid), Error);
+  EXPECT_THROW_WITH_MESSAGE(BuildDatabase(scratch_->File("models"), invalid), Error,
+                            "views per model", "got 0");
 }
 
 }  // namespace

@@ -169,13 +169,15 @@ TEST_F(EvaluationTest, UnknownClassesAndBadOptions) {
   for (const char* unused : {"bottle", "bowl", "box", "mug"}) {
     std::filesystem::remove_all(other + "/" + unused);
   }
-  EXPECT_THROW(HeldOutModels(*db_, other, &skipped), Error);
+  EXPECT_THROW_WITH_MESSAGE(HeldOutModels(*db_, other, &skipped), Error, other,
+                            "no usable held-out model");
   EvalOptions options;
   options.queries_per_model = 0;
-  EXPECT_THROW(Evaluate(*db_, models, options), Error);
+  EXPECT_THROW_WITH_MESSAGE(Evaluate(*db_, models, options), Error, "queries per model", "got 0");
   options = EvalOptions();  // instance protocol with held-out models
-  EXPECT_THROW(Evaluate(*db_, models, options), Error);
-  EXPECT_THROW(EvalProtocolFromString("objects"), Error);
+  EXPECT_THROW_WITH_MESSAGE(Evaluate(*db_, models, options), Error, "instance protocol",
+                            "is not in the database");
+  EXPECT_THROW_WITH_MESSAGE(EvalProtocolFromString("objects"), Error, "'objects'");
 }
 
 }  // namespace
