@@ -4,7 +4,6 @@
 
 #include "app/cli_util.h"
 #include "app/commands.h"
-#include "app/option_flags.h"
 #include "core/error.h"
 #include "recogniser/database.h"
 #include "recogniser/tools/database_builder.h"
@@ -20,8 +19,8 @@ int RunBuildDb(int argc, char** argv) {
                "[0.02, 0.75]) are scaled to a 0.25 m diagonal. Unreadable meshes are reported "
                "and skipped.",
                "sope build-db"};
-  std::string models_dir, out, preset = "sope";
-  int threads = 0;
+  std::string models_dir, out, preset = "sope", layout, hash;
+  int views = 0, bits = 0, threads = 0;
   cli::LoggingFlags logging;
   app.add_option("--models", models_dir, "Models directory")->required();
   app.add_option("--out", out, "Database file to write (.sopedb)")->required();
@@ -29,42 +28,31 @@ int RunBuildDb(int argc, char** argv) {
                  "sope (300 Fibonacci viewpoints, ITQ codes of coarse + fine descriptors) or "
                  "thesis (the thesis's 18 viewpoints, features and MLH codes)")
       ->capture_default_str();
-  // --layout, --views, --hash, --bits (DatabaseOptions::Fields()): bound to a scratch copy;
-  // those given are applied over the preset's.
-  DatabaseOptions given;
-  const auto flags = cli::AddOptionFlags(app, &given, DatabaseOptions::Fields());
-  auto count = [&](const char* flag) {
-    for (const auto& b : flags) {
-      if (b.field->flag == flag) return b.option->count();
-    }
-    return size_t{0};
-  };
+  CLI::Option* views_option =
+      app.add_option("--views", views, "Viewpoints per model (default: the preset's)");
+  CLI::Option* layout_option = app.add_option(
+      "--layout", layout,
+      "Viewpoints: thesis (18 on five declination rings) or fibonacci (any number, even "
+      "sphere sampling); default: thesis for 18 views under --preset thesis, else fibonacci");
+  app.add_option("--hash", hash, "Binary codes: lsh, sh, mlh, bre or itq (default: the preset's)");
+  app.add_option("--bits", bits, "Code length, bits (default: the preset's, 64)");
   app.add_option("--threads", threads, "Worker threads describing views (0 = all cores)")
       ->capture_default_str();
   logging.Add(app);
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
 
-  DatabaseOptions options = DatabaseOptions::Preset(preset);
-  const bool layout_given = count("--layout") > 0, views_given = count("--views") > 0;
-  cli::ApplyGivenFlags(flags, given, &options);
-  if (views_given) {
-    SOPE_CHECK(options.views_per_model >= 1, "--views must be ≥ 1, got {}",
-               options.views_per_model);
-    if (!layout_given) {
-      options.layout = options.views_per_model == 18 &&
-                               options.layout == ViewpointLayout::kThesis18
-                           ? ViewpointLayout::kThesis18
-                           : ViewpointLayout::kFibonacci;
-    }
+  DatabasePresetChoices choices;
+  choices.preset = preset;
+  if (views_option->count() > 0) {
+    SOPE_CHECK(views >= 1, "--views must be ≥ 1, got {}", views);
+    choices.views = views;
   }
-  if (options.layout == ViewpointLayout::kThesis18 && !views_given) {
-    options.views_per_model = 18;
-  }
-  SOPE_CHECK(options.layout != ViewpointLayout::kThesis18 || options.views_per_model == 18,
-             "--layout thesis has 18 viewpoints, --views {} given", options.views_per_model);
+  if (layout_option->count() > 0) choices.layout = ViewpointLayoutFromString(layout);
+  if (!hash.empty()) choices.hash = HashMethodFromString(hash);
+  if (bits != 0) choices.bits = bits;
   SOPE_CHECK(threads >= 0, "--threads must be ≥ 0, got {}", threads);
-  options.Check();
+  const DatabaseOptions options = ResolveDatabaseOptions(choices);
 
   const std::vector<ModelSource> models = ListModels(models_dir);
   spdlog::info("{} meshes in {}; {} {} viewpoints each, {} {}-bit codes", models.size(),

@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <iostream>
+#include <optional>
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -12,14 +13,13 @@
 #include "app/commands.h"
 #include "app/live_rig.h"
 #include "app/pipeline_flags.h"
-#include "capture/rig_session.h"
-#include "simulator/board_sequence.h"
-#include "simulator/virtual_rig.h"
 #include "calibration/calibration_report.h"
 #include "calibration/rig_calibrator.h"
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/frame_set.h"
+#include "pipeline/board_capture.h"
+#include "simulator/virtual_rig.h"
 
 namespace sope {
 namespace {
@@ -53,58 +53,62 @@ std::vector<std::string> ExpandFrameSetDirectories(const std::vector<std::string
   return directories;
 }
 
-// Live capture (--camera): one pattern sequence per board pose, each recorded as a frame
-// set `record/view_NNN` (atomically). A real camera waits for Enter on stdin before each
-// pose ("q" or end of input finishes); the virtual rig has no board to hold up, so it
-// scripts one: `virtual_views` poses drawn like `sope simulate --board` (its true
-// calibration is written to record/calibration_true.yaml). Returns the view directories.
-std::vector<std::string> CaptureBoardViews(const std::string& camera, const BoardSpec& board,
-                                           const RigCalibration& sizes,
-                                           const cli::LiveRigFlags& live_flags,
-                                           const std::string& record, int virtual_views) {
-  const bool is_virtual = camera == "virtual";
+// Live capture (--camera, pipeline/board_capture.h): a real camera waits for Enter on stdin
+// before each pose ("q" or end of input finishes); the virtual rig scripts
+// `virtual_views` poses. Returns the view directories.
+std::vector<std::string> CaptureLiveViews(const std::string& camera, const BoardSpec& board,
+                                          const RigCalibration& sizes,
+                                          const cli::LiveRigFlags& live_flags,
+                                          const std::string& record, int virtual_views) {
   const cli::InterruptFlag interrupt;
-  cli::LiveRig rig = cli::OpenLiveRig(camera, sizes, live_flags);
-  RigSession session(rig.GetDisplay(), rig.GetCamera(),
-                     live_flags.SessionOptions(interrupt.flag()));
-  PatternOptions patterns;  // white, black, Gray code in x and y with inverses
-  patterns.projector_width = sizes.projector.width;
-  patterns.projector_height = sizes.projector.height;
-  const std::vector<Pattern> sequence = GeneratePatterns(patterns);
-  std::vector<Rigid3d> poses;
-  BoardSequenceOptions board_options;
-  if (is_virtual) {
-    board_options.num_views = virtual_views;
-    poses = SampleBoardPoses(sizes, board, board_options);
-    WriteRigCalibration(JoinPath(record, "calibration_true.yaml"), sizes);
-    spdlog::info("virtual rig: no board to hold up; {} scripted board poses", poses.size());
-  }
-  std::vector<std::string> directories;
-  for (int index = 0;; ++index) {
-    if (is_virtual) {
-      if (index >= static_cast<int>(poses.size())) break;
-      Scene scene;
-      scene.objects.push_back(MakeCheckerboardObject(board, poses[index], board_options));
-      rig.virtual_rig.rig->SetScene(scene);
-    } else {
-      std::fprintf(stderr, "pose %d: hold the board still in view, then Enter to capture "
-                   "(q + Enter to finish, %zu captured): ", index, directories.size());
-      std::fflush(stderr);
-      std::string line;
-      if (!std::getline(std::cin, line) || line == "q" || line == "Q") {
-        std::fputs("\n", stderr);
-        break;
-      }
+  BoardCaptureOptions options;
+  options.spec = camera;
+  options.sizes = sizes;
+  options.board = board;
+  options.record_directory = record;
+  options.virtual_views = virtual_views;
+  options.rig = live_flags.RigOptions();
+  options.session = live_flags.SessionOptions(interrupt.flag());
+  const auto ready = [](int index, int captured) {
+    std::fprintf(stderr, "pose %d: hold the board still in view, then Enter to capture "
+                 "(q + Enter to finish, %d captured): ", index, captured);
+    std::fflush(stderr);
+    std::string line;
+    if (!std::getline(std::cin, line) || line == "q" || line == "Q") {
+      std::fputs("\n", stderr);
+      return false;
     }
-    SOPE_CHECK(!interrupt.flag()->load(), "interrupted");
-    const std::string directory = JoinPath(record, BoardViewName(index));
-    cli::Progress progress(fmt::format("pose {}: capturing", index), sequence.size());
-    session.Record(sequence, directory, nullptr,
-                   [&](size_t done, size_t) { progress.Update(done); });
-    directories.push_back(directory);
-    spdlog::info("pose {} -> {}", index, directory);
+    return true;
+  };
+  std::optional<cli::Progress> progress;
+  int pose = 0;
+  return CaptureBoardViews(
+      options, ready, [&](int index) { progress.reset(); pose = index; },
+      [&](size_t done, size_t total) {
+        if (!progress) progress.emplace(fmt::format("pose {}: capturing", pose), total);
+        progress->Update(done);
+      });
+}
+
+// Finds the board in every view, calibrates, and writes CAL.yaml with its report and
+// residual plot beside it.
+void CalibrateAndWrite(const BoardSpec& board, const CalibrationOptions& options,
+                       const std::vector<std::string>& directories, const std::string& out) {
+  RigCalibrator calibrator(board, options);
+  {
+    cli::Progress progress("finding the board", directories.size());
+    for (size_t i = 0; i < directories.size(); ++i) {
+      calibrator.AddFrameSet(LoadFrameSet(directories[i]), directories[i]);
+      progress.Update(i + 1);
+    }
   }
-  return directories;
+  const CalibrationSummary summary = calibrator.Calibrate();
+  WriteCalibrationReport(CalibrationSidecarPath(out, ".report.json"), summary);
+  WriteImageAtomic(CalibrationSidecarPath(out, ".residuals.png"), DrawResidualPlot(summary));
+  WriteRigCalibration(out, summary.calibration);
+  std::fputs(summary.BriefReport().c_str(), stdout);
+  spdlog::info("calibration -> {} (+ {}, {})", out, CalibrationSidecarPath(out, ".report.json"),
+               CalibrationSidecarPath(out, ".residuals.png"));
 }
 
 }  // namespace
@@ -213,26 +217,12 @@ int RunCalibrate(int argc, char** argv) {
     }
     SOPE_CHECK(virtual_views >= 3, "--views must be ≥ 3, got {}", virtual_views);
     if (record_dir.empty()) record_dir = CalibrationSidecarPath(out, ".views");
-    directories = CaptureBoardViews(live_camera, board, sizes, live_flags, record_dir,
+    directories = CaptureLiveViews(live_camera, board, sizes, live_flags, record_dir,
                                     virtual_views);
     SOPE_CHECK(directories.size() >= 3, "{} board pose(s) captured; calibration needs at least "
                "3 (better 10-20 in varied tilts)", directories.size());
   }
-  RigCalibrator calibrator(board, options);
-  {
-    cli::Progress progress("finding the board", directories.size());
-    for (size_t i = 0; i < directories.size(); ++i) {
-      calibrator.AddFrameSet(LoadFrameSet(directories[i]), directories[i]);
-      progress.Update(i + 1);
-    }
-  }
-  const CalibrationSummary summary = calibrator.Calibrate();
-  WriteCalibrationReport(CalibrationSidecarPath(out, ".report.json"), summary);
-  WriteImageAtomic(CalibrationSidecarPath(out, ".residuals.png"), DrawResidualPlot(summary));
-  WriteRigCalibration(out, summary.calibration);
-  std::fputs(summary.BriefReport().c_str(), stdout);
-  spdlog::info("calibration -> {} (+ {}, {})", out, CalibrationSidecarPath(out, ".report.json"),
-               CalibrationSidecarPath(out, ".residuals.png"));
+  CalibrateAndWrite(board, options, directories, out);
   return 0;
 }
 

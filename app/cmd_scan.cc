@@ -1,6 +1,9 @@
 // sope scan --frames DIR [--calibration CAL.yaml] --out CLOUD.ply
 // sope scan --camera /dev/videoN|virtual|replay:DIR [--calibration CAL.yaml] [--record DIR]
 //           --out CLOUD.ply
+#include <memory>
+#include <optional>
+
 #include <spdlog/spdlog.h>
 
 #include "app/cli_util.h"
@@ -8,11 +11,10 @@
 #include "app/live_rig.h"
 #include "app/pipeline_flags.h"
 #include "calibration/scan.h"
-#include "capture/rig_session.h"
 #include "core/error.h"
-#include "core/frame_set.h"
 #include "core/point_cloud.h"
 #include "core/rig_calibration.h"
+#include "pipeline/scan_source.h"
 #include "simulator/virtual_rig.h"
 
 namespace sope {
@@ -58,34 +60,35 @@ int RunScan(int argc, char** argv) {
   options.triangulation.num_threads = options.decoder.num_threads;
   SOPE_CHECK(!frames_dir.empty() || !camera.empty(), "one of --frames or --camera is required");
   SOPE_CHECK(record_dir.empty() || !camera.empty(), "--record needs --camera");
-  FrameSet frames;
-  RigCalibration calibration;
+  std::unique_ptr<ScanSource> source;
+  std::optional<cli::InterruptFlag> interrupt;  // live: Ctrl-C stops between frames
   if (camera.empty()) {
-    frames = LoadFrameSet(frames_dir);
-    calibration = ResolveCalibration(frames, calibration_path);
+    source = std::make_unique<FrameSetDirectorySource>(std::vector<std::string>{frames_dir},
+                                                       calibration_path);
   } else {
     SOPE_CHECK(!calibration_path.empty() || camera == "virtual",
                "--camera {} needs --calibration CAL.yaml", camera);
-    calibration = calibration_path.empty() ? DefaultRigCalibration()
-                                           : ReadRigCalibration(calibration_path);
-    const PatternOptions patterns =
-        pattern_flags.ToOptions(calibration.projector.width, calibration.projector.height);
-    const cli::InterruptFlag interrupt;
-    const RigSessionOptions session_options = live_flags.SessionOptions(interrupt.flag());
-    cli::LiveRig rig = cli::OpenLiveRig(camera, calibration, live_flags);
-    RigSession session(rig.GetDisplay(), rig.GetCamera(), session_options);
-    const std::vector<Pattern> sequence = GeneratePatterns(patterns);
-    cli::Progress capture_progress("capturing", sequence.size());
-    const auto on_frame = [&](size_t done, size_t) { capture_progress.Update(done); };
-    frames = record_dir.empty() ? session.Capture(sequence, on_frame)
-                                : session.Record(sequence, record_dir, &calibration, on_frame);
-    if (!record_dir.empty()) {
-      spdlog::info("recorded {} frames -> {}", frames.images.size(), record_dir);
-    }
+    LiveRigSourceOptions live;
+    live.spec = camera;
+    live.calibration = calibration_path.empty() ? DefaultRigCalibration()
+                                                : ReadRigCalibration(calibration_path);
+    if (!calibration_path.empty()) live.calibration_source = calibration_path;
+    live.patterns = pattern_flags.ToOptions(live.calibration.projector.width,
+                                            live.calibration.projector.height);
+    live.rig = live_flags.RigOptions();
+    interrupt.emplace();
+    live.session = live_flags.SessionOptions(interrupt->flag());
+    live.record_directory = record_dir;
+    source = std::make_unique<LiveRigSource>(live);
   }
-  CheckCalibrationMatchesFrames(calibration, frames.manifest,
-                                calibration_path.empty() ? "the calibration" : calibration_path);
-  const ScanResult result = ScanFrameSet(frames, calibration, options);
+  std::optional<cli::Progress> progress;
+  const SourceScan scan = source->Next(0, [&](size_t done, size_t total) {
+    if (!progress) progress.emplace("capturing", total);
+    progress->Update(done);
+  });
+  progress.reset();
+  CheckCalibrationMatchesFrames(scan.calibration, scan.frames.manifest, scan.calibration_source);
+  const ScanResult result = ScanFrameSet(scan.frames, scan.calibration, options);
   if (!maps_dir.empty()) WriteCorrespondenceMap(maps_dir, result.correspondences);
   const PointCloud& cloud = result.triangulation.cloud;
   SOPE_CHECK(!cloud.empty(), "no points: {} pixels decoded, none triangulated inside the "

@@ -71,6 +71,15 @@ int RunSimulate(int argc, char** argv) {
   app.add_option("--supersample", sensor.supersample, "Samples per camera pixel side")
       ->capture_default_str();
   app.add_option("--seed", sensor.seed, "Noise seed")->capture_default_str();
+  app.add_option("--camera-gamma", sensor.gamma, "Camera response gamma")->capture_default_str();
+  app.add_option("--projector-gamma", sensor.projector_gamma, "Projector response gamma")
+      ->capture_default_str();
+  app.add_option("--projector-black-level", sensor.projector_black_level,
+                 "Light of a black projector pixel, fraction of white")
+      ->capture_default_str();
+  app.add_option("--projector-saturation", sensor.projector_saturation,
+                 "Projector value (0..1] from which it emits full white")
+      ->capture_default_str();
   pattern_flags.Add(app);
   logging.Add(app);
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;

@@ -11,6 +11,7 @@ int RunDecode(int argc, char** argv);
 int RunScan(int argc, char** argv);
 int RunProject(int argc, char** argv);
 int RunCalibrate(int argc, char** argv);
+int RunCalibrateGamma(int argc, char** argv);
 int RunBuildDb(int argc, char** argv);
 int RunRecognise(int argc, char** argv);
 int RunScanAndRecognise(int argc, char** argv);

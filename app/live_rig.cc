@@ -4,16 +4,11 @@
 
 #include <csignal>
 
-#include "capture/replay_camera.h"
 #include "core/error.h"
 
 namespace sope {
 namespace cli {
 namespace {
-
-// Delivery jitter of the virtual camera as a fraction of its frame period: varies the
-// phase between Show() and the frames, as on hardware.
-constexpr double kVirtualJitter = 0.5;
 
 std::atomic<bool> interrupted{false};
 struct sigaction previous_int, previous_term;
@@ -62,51 +57,18 @@ RigSessionOptions LiveRigFlags::SessionOptions(const std::atomic<bool>* cancel) 
   return options;
 }
 
-CameraOptions LiveRigFlags::CameraOptionsFor(const RigCalibration& calibration) const {
-  CameraOptions options;
-  options.width = calibration.camera.width;
-  options.height = calibration.camera.height;
-  options.pixel_format = PixelFormatFromString(camera_format);
-  options.fps = fps;
-  options.exposure = 1e-3 * exposure_ms;
-  options.gain = gain;
-  options.manual = !keep_auto;
+LiveRigOptions LiveRigFlags::RigOptions() const {
+  LiveRigOptions options;
+  options.monitor = monitor;
+  options.windowed = windowed;
+  options.camera.pixel_format = PixelFormatFromString(camera_format);
+  options.camera.fps = fps;
+  options.camera.exposure = 1e-3 * exposure_ms;
+  options.camera.gain = gain;
+  options.camera.manual = !keep_auto;
+  options.virtual_delay_frames = virtual_delay_frames;
   options.Check();
   return options;
-}
-
-LiveRig OpenLiveRig(const std::string& spec, const RigCalibration& calibration,
-                    const LiveRigFlags& flags) {
-  LiveRig rig;
-  if (spec == "virtual") {
-    VirtualCameraOptions camera;
-    camera.delay_frames = flags.virtual_delay_frames;
-    camera.readout_jitter = kVirtualJitter * camera.frame_period;
-    rig.virtual_rig = MakeVirtualLiveRig(calibration, MakeDemoScene(), {}, camera);
-    spdlog::info("virtual rig: {}, built-in scene (a mug before a backdrop)",
-                 rig.virtual_rig.camera->description());
-    return rig;
-  }
-  rig.camera = OpenCamera(spec, flags.CameraOptionsFor(calibration));
-  SOPE_CHECK(rig.camera->width() == calibration.camera.width &&
-                 rig.camera->height() == calibration.camera.height,
-             "camera {} delivers {}x{} but the calibration is for a {}x{} camera",
-             rig.camera->name(), rig.camera->width(), rig.camera->height(),
-             calibration.camera.width, calibration.camera.height);
-  spdlog::info("camera: {}", rig.camera->description());
-  if (!rig.camera->live()) {  // a replay: nothing to project
-    rig.display =
-        std::make_unique<VirtualDisplay>(calibration.projector.width, calibration.projector.height);
-    return rig;
-  }
-  DisplayOptions display;
-  display.monitor = flags.monitor;
-  display.windowed = flags.windowed;
-  display.width = calibration.projector.width;
-  display.height = calibration.projector.height;
-  rig.display = OpenGlfwDisplay(display);
-  spdlog::info("projector: {}", rig.display->name());
-  return rig;
 }
 
 InterruptFlag::InterruptFlag() {

@@ -21,12 +21,15 @@ struct Command {
 };
 
 constexpr Command kCommands[] = {
-    {"patterns", sope::RunPatterns, "write Gray/binary stripe patterns as PNG + frames.json"},
+    {"patterns", sope::RunPatterns,
+     "write Gray/binary stripe or phase-shift patterns as PNG + frames.json"},
     {"simulate", sope::RunSimulate, "render a frame set on the virtual rig, with ground truth"},
     {"decode", sope::RunDecode, "decode a frame set into projector correspondence maps"},
     {"scan", sope::RunScan, "decode and triangulate a frame set into a point cloud"},
     {"project", sope::RunProject, "show the pattern sequence on the projector, stepping with keys"},
     {"calibrate", sope::RunCalibrate, "calibrate camera and projector from checkerboard frame sets"},
+    {"calibrate-gamma", sope::RunCalibrateGamma,
+     "measure the projector response (gamma) from a grey ramp into the calibration"},
     {"build-db", sope::RunBuildDb, "build a recognition database from a models directory"},
     {"recognise", sope::RunRecognise, "recognise an object in a point cloud and estimate its pose"},
     {"scan-and-recognise", sope::RunScanAndRecognise,

@@ -1,12 +1,29 @@
 #include "app/pipeline_flags.h"
 
+#include "app/cli_util.h"
+
 namespace sope {
 namespace cli {
 
 void PatternFlags::Add(CLI::App& app) {
   app.add_option("--axes", axes, "Coded projector axes: x (columns), y (rows) or xy")
       ->capture_default_str();
-  app.add_option("--code", code, "gray or binary")->capture_default_str();
+  app.add_option("--code", code,
+                 "gray or binary (stripes), phase (phase shift at --periods) or gray+phase "
+                 "(Gray code + one phase group at --period)")
+      ->capture_default_str();
+  app.add_option("--periods", periods,
+                 "--code phase: comma-separated periods in projector pixels, e.g. 1024,64,8 "
+                 "(the coarsest >= the projector size; default: size, size/8, size/64)");
+  app.add_option("--period", period,
+                 "--code gray+phase: period in projector pixels (a power of two)")
+      ->capture_default_str();
+  app.add_option("--steps", steps, "Phase shifts per period (>= 3)")->capture_default_str();
+  app.add_flag("--no-complementary", no_complementary,
+               "--code gray+phase: omit the complementary Gray bit half a period wide");
+  app.add_option("--pattern-gamma", pattern_gamma,
+                 "Pre-distort sinusoids for a projector of this gamma (1 = none)")
+      ->capture_default_str();
   app.add_flag("--no-inverse", no_inverse, "Omit the inverse of each code frame");
   app.add_flag("--no-white-black", no_white_black, "Omit the white and black frames");
   app.add_option("--skip-low-bits", skip_low_bits,
@@ -19,7 +36,12 @@ PatternOptions PatternFlags::ToOptions(int projector_width, int projector_height
   options.projector_width = projector_width;
   options.projector_height = projector_height;
   options.axes = PatternAxesFromString(axes);
-  options.code = PatternCodeFromString(code);
+  options.family = PatternFamilyFromString(code, &options.code);
+  if (!periods.empty()) options.periods = ParseNumbers(periods, "--periods");
+  options.period = period;
+  options.steps = steps;
+  options.complementary_bit = !no_complementary;
+  if (pattern_gamma != 1.0) options.precompensate = ProjectorResponse::Gamma(pattern_gamma);
   options.inverted = !no_inverse;
   options.white_black = !no_white_black;
   options.skip_low_bits = skip_low_bits;
@@ -44,6 +66,16 @@ void DecoderFlags::Add(CLI::App& app) {
   app.add_option("--decode-mode", mode,
                  "Bit decisions: auto (inverse if present), threshold, robust (indirect light)")
       ->capture_default_str();
+  app.add_option("--min-modulation", options.phase.min_modulation,
+                 "Phase sets: minimum sinusoid amplitude of every group, grey levels")
+      ->capture_default_str();
+  app.add_option("--max-unwrap-error", options.phase.max_unwrap_error,
+                 "Phase sets: coarse and fine coordinates may differ by this fraction of the "
+                 "fine period, else the pixel is invalid")
+      ->capture_default_str();
+  app.add_flag("--no-gamma-correction", no_gamma_correction,
+               "Phase sets: ignore the calibration's projector_response (e.g. for patterns "
+               "pre-distorted with --pattern-gamma)");
   app.add_option("--threads", options.num_threads,
                  "Threads for decoding (and triangulating, in commands that triangulate)")->capture_default_str();
 }
@@ -51,6 +83,7 @@ void DecoderFlags::Add(CLI::App& app) {
 DecoderOptions DecoderFlags::ToOptions() const {
   DecoderOptions result = options;
   result.bit_decision = BitDecisionFromString(mode);
+  if (no_gamma_correction) result.phase.use_calibration_response = false;
   result.Check();
   return result;
 }

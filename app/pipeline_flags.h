@@ -19,6 +19,12 @@ struct PatternFlags {
   bool no_inverse = false;
   bool no_white_black = false;
   int skip_low_bits = 0;
+  // Phase families (--code phase | gray+phase).
+  std::string periods;  // comma-separated, projector pixels; empty: automatic
+  double period = 16.0;
+  int steps = 4;
+  bool no_complementary = false;
+  double pattern_gamma = 1.0;  // pre-compensate a projector gamma (1 = none)
 
   void Add(CLI::App& app);
   // Options for a projector of the given size; checked.
@@ -28,6 +34,7 @@ struct PatternFlags {
 struct DecoderFlags {
   DecoderOptions options;
   std::string mode = "auto";
+  bool no_gamma_correction = false;
   void Add(CLI::App& app);
   DecoderOptions ToOptions() const;
 };

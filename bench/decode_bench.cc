@@ -22,6 +22,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/structured_light.hpp>
 
+#include "bench/bench_support.h"
 #include "core/file_util.h"
 #include "decoder/decoder.h"
 #include "projector/patterns.h"
@@ -238,7 +239,7 @@ BENCHMARK(BM_CopyAllFrames)
 
 // Keeps the real and CPU time (ms) of every benchmark for the summary: the median over the
 // repetitions where there are some, else the single run.
-class SummaryReporter : public benchmark::ConsoleReporter {
+class SummaryReporter : public bench::DisplayReporter {
  public:
   struct Times {
     double real_ms = 0.0;
@@ -255,7 +256,7 @@ class SummaryReporter : public benchmark::ConsoleReporter {
         times_[key] = {run.GetAdjustedRealTime(), run.GetAdjustedCPUTime()};
       }
     }
-    ConsoleReporter::ReportRuns(runs);
+    DisplayReporter::ReportRuns(runs);
   }
   // Zeros when the benchmark did not run (filtered out).
   Times Get(const std::string& key) const {

@@ -21,6 +21,7 @@
 #include <pcl/filters/voxel_grid.h>
 #include <pcl/search/kdtree.h>
 
+#include "bench/bench_support.h"
 #include "core/camera_model.h"
 #include "core/rigid3d.h"
 #include "core/units.h"
@@ -179,4 +180,4 @@ BENCHMARK(BM_ComputeFeatures_VfhOnly)->Unit(benchmark::kMillisecond);
 }  // namespace
 }  // namespace sope
 
-BENCHMARK_MAIN();
+SOPE_BENCHMARK_MAIN();

@@ -32,6 +32,7 @@
 #include <faiss/utils/Heap.h>
 #include <faiss/utils/hamming.h>
 
+#include "bench/bench_support.h"
 #include "recogniser/hamming_search.h"
 #include "recogniser/hashing.h"
 
@@ -306,11 +307,12 @@ void CrossCheck() {
 
 // Records every run for the closing summary: CPU seconds per iteration (the machine may
 // be shared, and CPU time leaves out preemption), the minimum over repetitions.
-class SummaryReporter : public benchmark::ConsoleReporter {
+class SummaryReporter : public bench::DisplayReporter {
  public:
-  explicit SummaryReporter(OutputOptions options) : ConsoleReporter(options) {}
+  explicit SummaryReporter(benchmark::ConsoleReporter::OutputOptions options)
+      : DisplayReporter(options) {}
   void ReportRuns(const std::vector<Run>& runs) override {
-    ConsoleReporter::ReportRuns(runs);
+    DisplayReporter::ReportRuns(runs);
     for (const Run& run : runs) {
       if (run.run_type != Run::RT_Iteration || run.error_occurred || run.iterations == 0) continue;
       const std::string name = run.run_name.function_name;  // without "/iterations:1" etc.

@@ -29,6 +29,7 @@
 
 #include <benchmark/benchmark.h>
 
+#include "bench/bench_support.h"
 #include "capture/rig_session.h"
 #include "recogniser/database.h"
 #include "recogniser/recogniser.h"
@@ -169,4 +170,4 @@ BENCHMARK(BM_FrameToResult_Thesis)->Iterations(5 * kScans)->UseManualTime()->Uni
 }  // namespace
 }  // namespace sope
 
-BENCHMARK_MAIN();
+SOPE_BENCHMARK_MAIN();

@@ -98,6 +98,7 @@
 #include <pcl/point_types.h>
 #include <pcl/search/kdtree.h>
 
+#include "bench/bench_support.h"
 #include "core/camera_model.h"
 #include "core/mesh.h"
 #include "core/stopwatch.h"
@@ -672,11 +673,11 @@ int main(int argc, char** argv) {
   setenv("OMP_NUM_THREADS", "1", 1);
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  sope::bench::DisplayReporter reporter(isatty(fileno(stdout))
+                                            ? benchmark::ConsoleReporter::OO_Defaults
+                                            : benchmark::ConsoleReporter::OO_Tabular);
   sope::GetData();  // build or load the databases and render the queries before timing
   sope::RegisterAll();
-  benchmark::ConsoleReporter reporter(isatty(fileno(stdout))
-                                          ? benchmark::ConsoleReporter::OO_Defaults
-                                          : benchmark::ConsoleReporter::OO_Tabular);
   benchmark::RunSpecifiedBenchmarks(&reporter);
   sope::PrintSummary();
   benchmark::Shutdown();

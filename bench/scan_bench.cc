@@ -7,6 +7,7 @@
 #include <benchmark/benchmark.h>
 #include <fmt/format.h>
 
+#include "bench/bench_support.h"
 #include "calibration/scan.h"
 #include "calibration/triangulation.h"
 #include "simulator/primitives.h"
@@ -91,4 +92,4 @@ BENCHMARK(BM_TriangulatorSetUp)->Unit(benchmark::kMillisecond);
 }  // namespace
 }  // namespace sope
 
-BENCHMARK_MAIN();
+SOPE_BENCHMARK_MAIN();

@@ -9,23 +9,11 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/json.h"
 
 namespace sope {
 namespace internal {
 namespace {
-
-nlohmann::json Number(double value) {
-  return std::isfinite(value) ? nlohmann::json(value) : nlohmann::json(nullptr);
-}
-
-nlohmann::json PoseJson(const Rigid3d& pose) {
-  nlohmann::json rotation = nlohmann::json::array();
-  for (int r = 0; r < 3; ++r) {
-    rotation.push_back({pose.rotation(r, 0), pose.rotation(r, 1), pose.rotation(r, 2)});
-  }
-  return {{"rotation", rotation},
-          {"translation", {pose.translation.x(), pose.translation.y(), pose.translation.z()}}};
-}
 
 nlohmann::json DeviceJson(const CameraModel& model, double rms) {
   return {{"width", model.width},
@@ -35,7 +23,7 @@ nlohmann::json DeviceJson(const CameraModel& model, double rms) {
           {"cx", model.cx()},
           {"cy", model.cy()},
           {"distortion", model.distortion},
-          {"rms_px", Number(rms)}};
+          {"rms_px", JsonNumber(rms)}};
 }
 
 // Last path component, for short labels.
@@ -131,7 +119,6 @@ void DrawScatter(cv::Mat* image, const cv::Rect& area, const CalibrationSummary&
 }  // namespace internal
 
 std::string CalibrationReportJson(const CalibrationSummary& summary) {
-  using internal::Number;
   nlohmann::json views = nlohmann::json::array();
   for (const CalibrationViewReport& view : summary.views) {
     nlohmann::json entry = {{"name", view.name},
@@ -140,10 +127,10 @@ std::string CalibrationReportJson(const CalibrationSummary& summary) {
                             {"used", view.used},
                             {"camera_corners", view.camera_corners},
                             {"projector_corners", view.projector_corners},
-                            {"rms_camera_px", Number(view.rms_camera_px)},
-                            {"rms_projector_px", Number(view.rms_projector_px)},
-                            {"rms_px", Number(view.rms_px)}};
-    if (view.board_found) entry["cam_from_board"] = internal::PoseJson(view.cam_from_board);
+                            {"rms_camera_px", JsonNumber(view.rms_camera_px)},
+                            {"rms_projector_px", JsonNumber(view.rms_projector_px)},
+                            {"rms_px", JsonNumber(view.rms_px)}};
+    if (view.board_found) entry["cam_from_board"] = Rigid3dToJson(view.cam_from_board);
     views.push_back(entry);
   }
   const RigCalibration& calibration = summary.calibration;
@@ -160,13 +147,13 @@ std::string CalibrationReportJson(const CalibrationSummary& summary) {
       {"views_without_board", summary.num_views_without_board},
       {"camera", internal::DeviceJson(calibration.camera, calibration.rms_camera_px)},
       {"projector", internal::DeviceJson(calibration.projector, calibration.rms_projector_px)},
-      {"proj_from_cam", internal::PoseJson(calibration.proj_from_cam)},
+      {"proj_from_cam", Rigid3dToJson(calibration.proj_from_cam)},
       {"baseline_m", calibration.BaselineLength()},
-      {"rms_camera_px", Number(calibration.rms_camera_px)},
-      {"rms_projector_px", Number(calibration.rms_projector_px)},
-      {"rms_stereo_px", Number(calibration.rms_stereo_px)},
-      {"initial_rms_camera_px", Number(summary.initial_rms_camera_px)},
-      {"initial_rms_projector_px", Number(summary.initial_rms_projector_px)},
+      {"rms_camera_px", JsonNumber(calibration.rms_camera_px)},
+      {"rms_projector_px", JsonNumber(calibration.rms_projector_px)},
+      {"rms_stereo_px", JsonNumber(calibration.rms_stereo_px)},
+      {"initial_rms_camera_px", JsonNumber(summary.initial_rms_camera_px)},
+      {"initial_rms_projector_px", JsonNumber(summary.initial_rms_projector_px)},
       {"solver",
        {{"termination", summary.solver_termination},
         {"iterations", summary.solver_iterations},

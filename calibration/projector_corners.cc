@@ -22,6 +22,7 @@ inline float Grey(const cv::Mat& image, int x, int y) {
 void RefineAxis(const FrameSet& frames, PatternAxis axis, float step, cv::Mat* coordinates) {
   const FrameSetManifest& manifest = frames.manifest;
   if (!manifest.HasAxis(axis) || manifest.AxisCode(axis) != PatternCode::kGray) return;
+  if (manifest.HasPhaseAxis(axis)) return;  // Gray + phase: already sub-pixel
   const int bits = manifest.AxisBits(axis);
   const int lowest = manifest.AxisLowestBit(axis);
   const int size = axis == PatternAxis::kX ? manifest.projector_width : manifest.projector_height;

@@ -4,6 +4,7 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "decoder/phase_decoder.h"
 
 namespace sope {
 namespace {
@@ -48,12 +49,22 @@ ScanResult ScanFrameSet(const FrameSet& frames, const Triangulator& triangulator
   CheckCalibrationMatchesFrames(triangulator.calibration(), frames.manifest, "(given)");
   ScanResult result;
   auto start = std::chrono::steady_clock::now();
-  result.correspondences = Decode(frames, decoder_options);
+  PhaseDecodeImages phase_images;  // phase sets: the texture when there is no white frame
+  if (frames.manifest.HasPhase()) {
+    DecoderOptions options = decoder_options;
+    if (options.phase.use_calibration_response && options.phase.response.IsIdentity()) {
+      options.phase.response = triangulator.calibration().projector_response;
+    }
+    DecodePhase(frames, options, &result.correspondences, &phase_images);
+  } else {
+    result.correspondences = Decode(frames, decoder_options);
+  }
   result.decode_ms = MillisecondsSince(start);
   cv::Mat white = frames.white_color;
   if (white.empty()) {
     if (const auto index = frames.manifest.Find(FrameRole::kWhite)) white = frames.images[*index];
   }
+  if (white.empty()) white = phase_images.texture;
   start = std::chrono::steady_clock::now();
   result.triangulation = triangulator.Triangulate(result.correspondences, white);
   result.triangulate_ms = MillisecondsSince(start);

@@ -10,6 +10,10 @@
 namespace sope {
 
 std::string DescribeFrameInfo(const FrameInfo& info) {
+  if (info.role == FrameRole::kPhase) {
+    return fmt::format("phase {} period {} shift {}", ToString(info.axis), info.period,
+                       info.shift);
+  }
   if (info.role != FrameRole::kCode) return ToString(info.role);
   return fmt::format("code {} {} bit {}/{}{}", ToString(info.axis), ToString(info.code), info.bit,
                      info.bits, info.inverted ? " inverted" : "");
@@ -21,6 +25,10 @@ bool SameFrameInfo(const FrameInfo& recorded, const FrameInfo& shown, std::strin
     same = recorded.axis == shown.axis && recorded.code == shown.code &&
            recorded.bits == shown.bits && recorded.bit == shown.bit &&
            recorded.inverted == shown.inverted;
+  }
+  if (same && recorded.role == FrameRole::kPhase) {
+    same = recorded.axis == shown.axis && recorded.period == shown.period &&
+           recorded.shift == shown.shift;
   }
   if (!same && why) {
     *why = fmt::format("recorded {} but the projector shows {}", DescribeFrameInfo(recorded),

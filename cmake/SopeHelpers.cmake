@@ -27,11 +27,13 @@ function(sope_add_test)
 endfunction()
 
 # sope_add_bench(NAME name SRCS ... [DEPS ...])
+#   A Google Benchmark program with bench/bench_support.cc (logs on stderr; the reporter
+#   --benchmark_format asks for, alone on stdout).
 function(sope_add_bench)
   if(NOT SOPE_BUILD_BENCH)
     return()
   endif()
   cmake_parse_arguments(ARG "" "NAME" "SRCS;DEPS" ${ARGN})
-  add_executable(${ARG_NAME} ${ARG_SRCS})
-  target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} benchmark::benchmark)
+  add_executable(${ARG_NAME} ${ARG_SRCS} ${PROJECT_SOURCE_DIR}/bench/bench_support.cc)
+  target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} benchmark::benchmark spdlog::spdlog)
 endfunction()

@@ -1,5 +1,6 @@
 #include "core/frame_set.h"
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <set>
@@ -18,6 +19,9 @@ namespace {
 using nlohmann::json;
 
 constexpr int kMaxCodeBits = 16;
+constexpr double kTwoPi = 6.283185307179586476925286766559;
+// Phase shifts closer than this (modulo 2π) count as one, radians.
+constexpr double kDistinctShiftRad = 1e-6;
 constexpr int kMaxDeviceSize = 1 << kMaxCodeBits;
 
 template <typename T>
@@ -43,6 +47,7 @@ std::string ToString(FrameRole role) {
     case FrameRole::kWhite: return "white";
     case FrameRole::kBlack: return "black";
     case FrameRole::kCode: return "code";
+    case FrameRole::kPhase: return "phase";
   }
   return "?";
 }
@@ -53,7 +58,8 @@ FrameRole FrameRoleFromString(const std::string& text) {
   if (text == "white") return FrameRole::kWhite;
   if (text == "black") return FrameRole::kBlack;
   if (text == "code") return FrameRole::kCode;
-  SOPE_THROW("unknown frame role '{}' (expected white, black or code)", text);
+  if (text == "phase") return FrameRole::kPhase;
+  SOPE_THROW("unknown frame role '{}' (expected white, black, code or phase)", text);
 }
 PatternAxis PatternAxisFromString(const std::string& text) {
   if (text == "x") return PatternAxis::kX;
@@ -77,7 +83,7 @@ void FrameSetManifest::Check() const {
   std::set<std::string> files;
   std::set<std::tuple<int, int, bool>> codes;
   std::map<int, std::pair<int, PatternCode>> axis_format;
-  int whites = 0, blacks = 0;
+  int whites = 0, blacks = 0, phase_frames = 0;
   for (size_t i = 0; i < frames.size(); ++i) {
     const FrameInfo& frame = frames[i];
     SOPE_CHECK(!frame.file.empty(), "frame {}: empty file name", i);
@@ -92,6 +98,15 @@ void FrameSetManifest::Check() const {
     }
     if (frame.role == FrameRole::kBlack) {
       ++blacks;
+      continue;
+    }
+    if (frame.role == FrameRole::kPhase) {
+      SOPE_CHECK(std::isfinite(frame.period) && frame.period > 0.0,
+                 "frame {} ({}): phase period {} must be a positive, finite number of "
+                 "projector pixels", i, frame.file, frame.period);
+      SOPE_CHECK(std::isfinite(frame.shift), "frame {} ({}): phase shift {} is not finite", i,
+                 frame.file, frame.shift);
+      ++phase_frames;
       continue;
     }
     const int size = frame.axis == PatternAxis::kX ? projector_width : projector_height;
@@ -112,7 +127,8 @@ void FrameSetManifest::Check() const {
                ToString(frame.axis), frame.bit, frame.inverted ? " (inverted)" : "");
   }
   SOPE_CHECK(whites <= 1 && blacks <= 1, "more than one white or black frame");
-  SOPE_CHECK(!axis_format.empty(), "no code frames");
+  SOPE_CHECK(!axis_format.empty() || phase_frames > 0, "no code or phase frames");
+  CheckPhaseGroups();
   for (const auto& [axis, bit, inverted] : codes) {
     if (inverted) {
       SOPE_CHECK(codes.count({axis, bit, false}) == 1,
@@ -135,8 +151,100 @@ void FrameSetManifest::Check() const {
   for (const auto& [axis, bit, inverted] : codes) {
     if (!inverted && codes.count({axis, bit, true}) == 0) any_without_inverse = true;
   }
-  SOPE_CHECK(!any_without_inverse || (whites == 1 && blacks == 1),
+  // Phase sets may threshold a Gray code of a phase axis at the sinusoids' offset instead.
+  bool without_reference = false;
+  for (const auto& [axis, bit, inverted] : codes) {
+    if (!inverted && codes.count({axis, bit, true}) == 0 &&
+        !HasPhaseAxis(static_cast<PatternAxis>(axis))) {
+      without_reference = true;
+    }
+  }
+  SOPE_CHECK(!without_reference || (whites == 1 && blacks == 1),
              "code frames without inverses need both a white and a black frame");
+}
+
+void FrameSetManifest::CheckPhaseGroups() const {
+  for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+    const std::vector<PhaseGroup> groups = PhaseGroups(axis);
+    if (groups.empty()) continue;
+    const std::string name = ToString(axis);
+    for (const PhaseGroup& group : groups) {
+      // Distinct shifts modulo 2π: three distinct points on the unit circle make the
+      // least-squares system [1, cos s, sin s] regular.
+      std::vector<double> wrapped;
+      for (double shift : group.shifts) {
+        double w = std::fmod(shift, kTwoPi);
+        if (w < 0.0) w += kTwoPi;
+        bool seen = false;
+        for (double other : wrapped) {
+          const double d = std::abs(w - other);
+          seen = seen || std::min(d, kTwoPi - d) < kDistinctShiftRad;
+        }
+        if (!seen) wrapped.push_back(w);
+      }
+      SOPE_CHECK(wrapped.size() >= 3,
+                 "axis {} phase group of period {}: {} distinct shift{} (frame '{}'); a group "
+                 "needs at least 3 distinct shifts", name, group.period, wrapped.size(),
+                 wrapped.size() == 1 ? "" : "s", frames[group.frames.front()].file);
+    }
+    const PhaseGroup& coarsest = groups.front();
+    const int size = axis == PatternAxis::kX ? projector_width : projector_height;
+    if (AxisBits(axis) > 0) {
+      // Gray + phase: the code gives the period index (blocks of 2^lowest pixels), one
+      // period wide, or half a period with one complementary bit.
+      SOPE_CHECK(AxisCode(axis) == PatternCode::kGray,
+                 "axis {}: phase frames can be combined with a Gray code only, not {}", name,
+                 ToString(AxisCode(axis)));
+      const double block = std::ldexp(1.0, AxisLowestBit(axis));
+      SOPE_CHECK(block == coarsest.period || 2.0 * block == coarsest.period,
+                 "axis {}: the Gray code's finest stripe is {} px but the coarsest phase "
+                 "period is {} px (they must be equal, or the stripe half the period with a "
+                 "complementary bit)", name, block, coarsest.period);
+    } else {
+      SOPE_CHECK(coarsest.absolute,
+                 "axis {}: the phase group of period {} px is finer than the projector ({} "
+                 "px) and has no coarser group or Gray code to unwrap it", name,
+                 coarsest.period, size);
+    }
+  }
+}
+
+bool FrameSetManifest::HasPhase() const {
+  for (const FrameInfo& f : frames) {
+    if (f.role == FrameRole::kPhase) return true;
+  }
+  return false;
+}
+
+bool FrameSetManifest::HasPhaseAxis(PatternAxis axis) const {
+  for (const FrameInfo& f : frames) {
+    if (f.role == FrameRole::kPhase && f.axis == axis) return true;
+  }
+  return false;
+}
+
+std::vector<PhaseGroup> FrameSetManifest::PhaseGroups(PatternAxis axis) const {
+  std::vector<PhaseGroup> groups;
+  const int size = axis == PatternAxis::kX ? projector_width : projector_height;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const FrameInfo& f = frames[i];
+    if (f.role != FrameRole::kPhase || f.axis != axis) continue;
+    auto it = std::find_if(groups.begin(), groups.end(),
+                           [&](const PhaseGroup& g) { return g.period == f.period; });
+    if (it == groups.end()) {
+      PhaseGroup group;
+      group.axis = axis;
+      group.period = f.period;
+      group.absolute = f.period >= size;
+      groups.push_back(group);
+      it = groups.end() - 1;
+    }
+    it->frames.push_back(i);
+    it->shifts.push_back(f.shift);
+  }
+  std::stable_sort(groups.begin(), groups.end(),
+                   [](const PhaseGroup& a, const PhaseGroup& b) { return a.period > b.period; });
+  return groups;
 }
 
 std::optional<size_t> FrameSetManifest::Find(FrameRole role) const {
@@ -215,6 +323,10 @@ FrameSetManifest ParseFrameSetManifest(const std::string& json_text, const std::
         frame.bits = Get<int>(entry, "bits", where);
         frame.bit = Get<int>(entry, "bit", where);
         frame.inverted = entry.contains("inverted") ? Get<bool>(entry, "inverted", where) : false;
+      } else if (frame.role == FrameRole::kPhase) {
+        frame.axis = PatternAxisFromString(Get<std::string>(entry, "axis", where));
+        frame.period = Get<double>(entry, "period", where);
+        frame.shift = Get<double>(entry, "shift", where);
       }
     } catch (const Error& e) {
       const std::string message = e.what();
@@ -249,6 +361,10 @@ std::string SerializeFrameSetManifest(const FrameSetManifest& manifest) {
       entry["bits"] = frame.bits;
       entry["bit"] = frame.bit;
       entry["inverted"] = frame.inverted;
+    } else if (frame.role == FrameRole::kPhase) {
+      entry["axis"] = ToString(frame.axis);
+      entry["period"] = frame.period;
+      entry["shift"] = frame.shift;
     }
     frames.push_back(entry);
   }

@@ -10,7 +10,8 @@
 
 namespace sope {
 
-enum class FrameRole { kWhite, kBlack, kCode };
+// kPhase: a sinusoid I(u) = ½·(1 + cos(2π·u/period − shift)) along `axis` (DESIGN.md).
+enum class FrameRole { kWhite, kBlack, kCode, kPhase };
 enum class PatternAxis { kX, kY };  // x codes projector columns, y rows
 enum class PatternCode { kGray, kBinary };
 
@@ -34,6 +35,20 @@ struct FrameInfo {
   int bits = 0;           // code length of the full sequence on this axis
   int bit = 0;            // 0 = least significant
   bool inverted = false;  // the inverse (negative) of the pattern for `bit`
+  // Only for role == kPhase (and `axis`): the sinusoid's period in projector pixels (any
+  // positive real) and its phase shift in radians; u is the projector column (axis x) or
+  // row (y), pixel centres at integers.
+  double period = 0.0;
+  double shift = 0.0;
+};
+
+// One phase-shift group: the frames of one axis and period (≥ 3 distinct shifts).
+struct PhaseGroup {
+  PatternAxis axis = PatternAxis::kX;
+  double period = 0.0;          // projector pixels
+  std::vector<size_t> frames;   // manifest indices, in manifest order
+  std::vector<double> shifts;   // radians, same order
+  bool absolute = false;        // period ≥ the projector size on the axis
 };
 
 struct FrameSetManifest {
@@ -49,7 +64,12 @@ struct FrameSetManifest {
 
   // Throws sope::Error describing the first inconsistency: sizes, duplicate frames,
   // a bit ≥ bits, bits too small for the projector size, mixed codes or bit counts on one
-  // axis, an inverse without its pattern, no code frames at all.
+  // axis, an inverse without its pattern, no code or phase frames at all; for phase
+  // frames: a period ≤ 0 or not finite, a shift not finite, a group with < 3 distinct
+  // shifts, a finer group with neither a coarser group nor Gray code to unwrap it, Gray
+  // code on a phase axis whose finest stripe (2^lowest bit) is not the coarsest period
+  // wide (or one complementary bit finer). A Gray code on a phase axis needs neither
+  // inverses nor white/black: it can be thresholded at the sinusoids' offset.
   void Check() const;
   // Index of the frame with this role (and axis/bit/inverted for codes), if present.
   std::optional<size_t> Find(FrameRole role) const;
@@ -59,6 +79,14 @@ struct FrameSetManifest {
   int AxisBits(PatternAxis axis) const;
   int AxisLowestBit(PatternAxis axis) const;
   PatternCode AxisCode(PatternAxis axis) const;
+  // Phase frames: whether there are any (on `axis`), and the groups of an axis from the
+  // coarsest period to the finest (empty when the axis has no phase frames).
+  bool HasPhase() const;
+  bool HasPhaseAxis(PatternAxis axis) const;
+  std::vector<PhaseGroup> PhaseGroups(PatternAxis axis) const;
+
+ private:
+  void CheckPhaseGroups() const;
 };
 
 // Parses `frames.json` text; `source` names it in error messages.

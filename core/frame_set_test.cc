@@ -1,6 +1,7 @@
 #include "core/frame_set.h"
 
 #include <fstream>
+#include <limits>
 
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
@@ -121,6 +122,158 @@ TEST(FrameSet, MalformedManifestsGiveClearErrors) {
   }
   j["frames"] = frames;
   EXPECT_NE(ErrorOf([&] { parse(j); }).find("need both a white and a black"), std::string::npos);
+}
+
+// Phase frames of one group: `shifts` on `axis` at `period`, files named after them.
+void AddPhaseGroup(PatternAxis axis, double period, const std::vector<double>& shifts,
+                   FrameSetManifest* manifest) {
+  for (double shift : shifts) {
+    FrameInfo frame;
+    frame.role = FrameRole::kPhase;
+    frame.axis = axis;
+    frame.period = period;
+    frame.shift = shift;
+    frame.file = fmt::format("phase_{}_{}_{}.png", ToString(axis), period,
+                             manifest->frames.size());
+    manifest->frames.push_back(frame);
+  }
+}
+
+// A phase-only manifest for a 64×48 projector: x at periods 64 (absolute) and 8.
+FrameSetManifest PhaseManifest() {
+  FrameSetManifest manifest;
+  manifest.camera_width = 8;
+  manifest.camera_height = 6;
+  manifest.projector_width = 64;
+  manifest.projector_height = 48;
+  AddPhaseGroup(PatternAxis::kX, 64.0, {0.0, 2.0944, 4.18879}, &manifest);
+  AddPhaseGroup(PatternAxis::kX, 8.0, {0.0, 1.5707963, 3.14159265, 4.71238898}, &manifest);
+  return manifest;
+}
+
+TEST(FrameSet, PhaseManifestRoundTripAndGroups) {
+  const FrameSetManifest manifest = PhaseManifest();
+  const FrameSetManifest parsed =
+      ParseFrameSetManifest(SerializeFrameSetManifest(manifest), "test");
+  ASSERT_EQ(parsed.frames.size(), 7u);
+  EXPECT_EQ(parsed.frames[4].role, FrameRole::kPhase);
+  EXPECT_EQ(parsed.frames[4].period, 8.0);
+  EXPECT_EQ(parsed.frames[5].shift, 3.14159265);
+  EXPECT_TRUE(parsed.HasPhase());
+  EXPECT_TRUE(parsed.HasPhaseAxis(PatternAxis::kX));
+  EXPECT_FALSE(parsed.HasPhaseAxis(PatternAxis::kY));
+  EXPECT_FALSE(parsed.HasAxis(PatternAxis::kX));  // no code frames
+  const std::vector<PhaseGroup> groups = parsed.PhaseGroups(PatternAxis::kX);
+  ASSERT_EQ(groups.size(), 2u);
+  EXPECT_EQ(groups[0].period, 64.0);
+  EXPECT_TRUE(groups[0].absolute);
+  EXPECT_EQ(groups[1].period, 8.0);
+  EXPECT_FALSE(groups[1].absolute);
+  EXPECT_EQ(groups[1].frames, (std::vector<size_t>{3, 4, 5, 6}));
+}
+
+TEST(FrameSet, DesignPhaseExampleParses) {
+  // DESIGN.md: SLStudio's "2x3" codec for a 1824-wide projector.
+  const std::string text = R"({ "format": "sope-frames/1",
+    "camera": {"width": 1688, "height": 1352}, "projector": {"width": 1824, "height": 1140},
+    "frames": [
+      {"file": "f0.png", "role": "phase", "axis": "x", "period": 1824.0, "shift": 0.0},
+      {"file": "f1.png", "role": "phase", "axis": "x", "period": 1824.0, "shift": 2.0944},
+      {"file": "f2.png", "role": "phase", "axis": "x", "period": 1824.0, "shift": 4.18879},
+      {"file": "f3.png", "role": "phase", "axis": "x", "period": 114.0, "shift": 0.0},
+      {"file": "f4.png", "role": "phase", "axis": "x", "period": 114.0, "shift": 2.0944},
+      {"file": "f5.png", "role": "phase", "axis": "x", "period": 114.0, "shift": 4.18879} ] })";
+  const FrameSetManifest manifest = ParseFrameSetManifest(text, "design");
+  ASSERT_EQ(manifest.PhaseGroups(PatternAxis::kX).size(), 2u);
+  EXPECT_EQ(manifest.PhaseGroups(PatternAxis::kX)[1].period, 114.0);
+}
+
+TEST(FrameSet, BadPhaseSetsGiveClearErrors) {
+  using nlohmann::json;
+  const json good = json::parse(SerializeFrameSetManifest(PhaseManifest()));
+  auto parse = [](const json& j) { ParseFrameSetManifest(j.dump(), "m.json"); };
+  ASSERT_TRUE(ErrorOf([&] { parse(good); }).empty());
+  json j = good;
+  j["frames"][1]["shift"] = 2.0 * 3.14159265358979323846;  // = shift 0 modulo 2π
+  EXPECT_NE(ErrorOf([&] { parse(j); }).find("phase group of period 64: 2 distinct shifts"),
+            std::string::npos)
+      << ErrorOf([&] { parse(j); });
+  j = good;
+  j["frames"].erase(2);  // two shifts left at period 64
+  EXPECT_NE(ErrorOf([&] { parse(j); }).find("at least 3 distinct shifts"), std::string::npos);
+  j = good;
+  j["frames"][3]["period"] = 0.0;
+  EXPECT_NE(ErrorOf([&] { parse(j); }).find("phase period 0 must be a positive"),
+            std::string::npos);
+  j = good;
+  j["frames"][3]["period"] = -8.0;
+  EXPECT_NE(ErrorOf([&] { parse(j); }).find("phase period -8 must be a positive"),
+            std::string::npos);
+  j = good;
+  j["frames"][3]["period"] = "eight";
+  EXPECT_NE(ErrorOf([&] { parse(j); }).find("'period' has the wrong type"), std::string::npos);
+  j = good;
+  j["frames"][3].erase("shift");
+  EXPECT_NE(ErrorOf([&] { parse(j); }).find("missing 'shift'"), std::string::npos);
+  // Not finite (in-memory manifests; JSON cannot carry NaN).
+  FrameSetManifest manifest = PhaseManifest();
+  manifest.frames[3].period = std::numeric_limits<double>::infinity();
+  EXPECT_NE(ErrorOf([&] { manifest.Check(); }).find("phase period inf"), std::string::npos);
+  manifest = PhaseManifest();
+  manifest.frames[3].shift = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_NE(ErrorOf([&] { manifest.Check(); }).find("phase shift nan is not finite"),
+            std::string::npos);
+  // The absolute group removed: period 8 has nothing to unwrap it.
+  j = good;
+  for (int k = 0; k < 3; ++k) j["frames"].erase(0);
+  EXPECT_NE(ErrorOf([&] { parse(j); })
+                .find("phase group of period 8 px is finer than the projector (64 px) and has "
+                      "no coarser group or Gray code"),
+            std::string::npos)
+      << ErrorOf([&] { parse(j); });
+  // A y group with a coarsest period below the projector height.
+  manifest = PhaseManifest();
+  AddPhaseGroup(PatternAxis::kY, 47.5, {0.0, 2.0, 4.0}, &manifest);
+  EXPECT_NE(ErrorOf([&] { manifest.Check(); }).find("axis y: the phase group of period 47.5"),
+            std::string::npos);
+}
+
+TEST(FrameSet, GrayPlusPhaseMustFitTogether) {
+  // Gray code bits 5..3 of a 64-pixel x axis: blocks of 8 px; phase at period 8 fits, and
+  // at 16 fits with bit 3 as the complementary half-period bit.
+  auto make = [](int lowest_bit, double period) {
+    FrameSetManifest manifest;
+    manifest.camera_width = 8;
+    manifest.camera_height = 6;
+    manifest.projector_width = 64;
+    manifest.projector_height = 48;
+    for (int bit = 5; bit >= lowest_bit; --bit) {
+      for (bool inverted : {false, true}) {
+        FrameInfo code;
+        code.file = fmt::format("code_{}{}.png", bit, inverted ? "i" : "");
+        code.axis = PatternAxis::kX;
+        code.bits = 6;
+        code.bit = bit;
+        code.inverted = inverted;
+        manifest.frames.push_back(code);
+      }
+    }
+    AddPhaseGroup(PatternAxis::kX, period, {0.0, 2.0944, 4.18879}, &manifest);
+    return manifest;
+  };
+  EXPECT_TRUE(ErrorOf([&] { make(3, 8.0).Check(); }).empty());
+  EXPECT_TRUE(ErrorOf([&] { make(3, 16.0).Check(); }).empty());
+  EXPECT_NE(ErrorOf([&] { make(3, 12.0).Check(); })
+                .find("axis x: the Gray code's finest stripe is 8 px but the coarsest phase "
+                      "period is 12 px"),
+            std::string::npos)
+      << ErrorOf([&] { make(3, 12.0).Check(); });
+  EXPECT_FALSE(ErrorOf([&] { make(3, 32.0).Check(); }).empty());
+  EXPECT_FALSE(ErrorOf([&] { make(4, 8.0).Check(); }).empty());
+  FrameSetManifest binary = make(3, 8.0);
+  for (FrameInfo& frame : binary.frames) frame.code = PatternCode::kBinary;
+  EXPECT_NE(ErrorOf([&] { binary.Check(); }).find("combined with a Gray code only"),
+            std::string::npos);
 }
 
 TEST(FrameSet, WriteLoadRoundTrip) {

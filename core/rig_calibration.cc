@@ -11,11 +11,31 @@
 namespace sope {
 namespace {
 
+constexpr const char* kResponseKey = "projector_response";
+
 cv::Mat ReadMatrix(const cv::FileStorage& fs, const std::string& key, const std::string& path,
                    int rows, int cols) {
   cv::Mat matrix;
   const cv::FileNode node = fs[key];
   SOPE_CHECK(!node.empty(), "calibration {}: missing key '{}'", path, key);
+  if (node.isMap()) {
+    // OpenCV allocates rows × cols before reading `data`: check the sizes first (the
+    // largest matrix here is the projector response, a vector of up to 4096 entries).
+    constexpr int kMaxSide = 4096;
+    const cv::FileNode rows_node = node["rows"], cols_node = node["cols"];
+    const cv::FileNode data_node = node["data"];
+    SOPE_CHECK(rows_node.isInt() && cols_node.isInt() && data_node.isSeq(),
+               "calibration {}: '{}' is not a matrix", path, key);
+    const int rows_in_file = static_cast<int>(rows_node);
+    const int cols_in_file = static_cast<int>(cols_node);
+    SOPE_CHECK(rows_in_file >= 1 && rows_in_file <= kMaxSide && cols_in_file >= 1 &&
+                   cols_in_file <= kMaxSide,
+               "calibration {}: '{}' is {}x{}, expected sizes in 1..{}", path, key, rows_in_file,
+               cols_in_file, kMaxSide);
+    SOPE_CHECK(data_node.size() == static_cast<size_t>(rows_in_file) * cols_in_file,
+               "calibration {}: '{}' is {}x{} but holds {} values", path, key, rows_in_file,
+               cols_in_file, data_node.size());
+  }
   try {
     node >> matrix;
   } catch (const cv::Exception&) {
@@ -98,23 +118,45 @@ RigCalibration ReadRigCalibration(const std::string& path) {
   cv::FileStorage fs;
   try {
     fs.open(path, cv::FileStorage::READ);
-  } catch (const cv::Exception& e) {
+  } catch (const std::exception&) {  // cv::Exception, and std::length_error from its parser
     SOPE_THROW("calibration {}: not a readable OpenCV YAML/XML file", path);
   }
   SOPE_CHECK(fs.isOpened(), "calibration {}: cannot open", path);
+  // Keys are looked up in the top-level map; OpenCV asserts (throws) on anything else.
+  SOPE_CHECK(fs.root().isMap(), "calibration {}: not a calibration file (the top level is not a "
+             "map of keys)", path);
   RigCalibration calibration;
-  calibration.camera = ReadDevice(fs, "camera", path);
-  calibration.projector = ReadDevice(fs, "projector", path);
-  cv::cv2eigen(ReadMatrix(fs, "proj_from_cam_rotation", path, 3, 3),
-               calibration.proj_from_cam.rotation);
-  cv::Mat translation = ReadMatrix(fs, "proj_from_cam_translation", path, -1, -1);
-  SOPE_CHECK(translation.total() == 3, "calibration {}: 'proj_from_cam_translation' must "
-             "have 3 elements, got {}", path, translation.total());
-  translation = translation.reshape(1, 3);
-  cv::cv2eigen(translation, calibration.proj_from_cam.translation);
-  calibration.rms_camera_px = ReadOptionalDouble(fs, "rms_camera_px");
-  calibration.rms_projector_px = ReadOptionalDouble(fs, "rms_projector_px");
-  calibration.rms_stereo_px = ReadOptionalDouble(fs, "rms_stereo_px");
+  try {  // a later document of the stream that is no map makes lookups throw too
+    calibration.camera = ReadDevice(fs, "camera", path);
+    calibration.projector = ReadDevice(fs, "projector", path);
+    cv::cv2eigen(ReadMatrix(fs, "proj_from_cam_rotation", path, 3, 3),
+                 calibration.proj_from_cam.rotation);
+    cv::Mat translation = ReadMatrix(fs, "proj_from_cam_translation", path, -1, -1);
+    SOPE_CHECK(translation.total() == 3, "calibration {}: 'proj_from_cam_translation' must "
+               "have 3 elements, got {}", path, translation.total());
+    translation = translation.reshape(1, 3);
+    cv::cv2eigen(translation, calibration.proj_from_cam.translation);
+    calibration.rms_camera_px = ReadOptionalDouble(fs, "rms_camera_px");
+    calibration.rms_projector_px = ReadOptionalDouble(fs, "rms_projector_px");
+    calibration.rms_stereo_px = ReadOptionalDouble(fs, "rms_stereo_px");
+    if (!fs[kResponseKey].empty()) {
+      const cv::Mat response = ReadMatrix(fs, kResponseKey, path, -1, -1);
+      SOPE_CHECK(response.rows == 1 || response.cols == 1,
+                 "calibration {}: '{}' must be a vector", path, kResponseKey);
+      calibration.projector_response.table.assign(response.begin<double>(), response.end<double>());
+      try {
+        calibration.projector_response.Check();
+      } catch (const Error& e) {
+        SOPE_THROW("calibration {}: {}", path, e.what());
+      }
+    }
+  } catch (const Error&) {
+    throw;
+  } catch (const cv::Exception& e) {
+    SOPE_THROW("calibration {}: not a calibration file (OpenCV: {})", path, e.err);
+  } catch (const std::exception& e) {
+    SOPE_THROW("calibration {}: not a calibration file ({})", path, e.what());
+  }
   try {
     calibration.Check();
   } catch (const Error& e) {
@@ -136,6 +178,10 @@ void WriteRigCalibration(const std::string& path, const RigCalibration& calibrat
   fs << "rms_camera_px" << calibration.rms_camera_px;
   fs << "rms_projector_px" << calibration.rms_projector_px;
   fs << "rms_stereo_px" << calibration.rms_stereo_px;
+  calibration.projector_response.Check();
+  if (!calibration.projector_response.IsIdentity()) {
+    fs << kResponseKey << cv::Mat(calibration.projector_response.table, true).reshape(1, 1);
+  }
   WriteFileAtomic(path, fs.releaseAndGetString());
 }
 

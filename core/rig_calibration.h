@@ -4,6 +4,7 @@
 #include <string>
 
 #include "core/camera_model.h"
+#include "core/projector_response.h"
 #include "core/rigid3d.h"
 
 namespace sope {
@@ -18,6 +19,9 @@ struct RigCalibration {
   double rms_camera_px = 0.0;
   double rms_projector_px = 0.0;
   double rms_stereo_px = 0.0;
+  // Optional (key `projector_response`, a 1×K row): the measured projector → camera
+  // intensity response (sope calibrate-gamma); identity when absent.
+  ProjectorResponse projector_response;
 
   // Throws sope::Error when a device model is invalid or the rotation is not a rotation.
   void Check() const;

@@ -59,6 +59,38 @@ TEST(RigCalibration, ReadableByOpenCvFileStorageWithDesignKeys) {
   EXPECT_EQ(translation.cols, 1);
 }
 
+TEST(RigCalibration, ProjectorResponseIsOptionalAndRoundTrips) {
+  testing::ScratchDir scratch;
+  RigCalibration rig = TestRig();
+  WriteRigCalibration(scratch.File("plain.yaml"), rig);
+  EXPECT_TRUE(ReadRigCalibration(scratch.File("plain.yaml")).projector_response.IsIdentity());
+  {
+    cv::FileStorage fs(scratch.File("plain.yaml"), cv::FileStorage::READ);
+    EXPECT_TRUE(fs["projector_response"].empty());  // files without it stay as they were
+  }
+  rig.projector_response = ProjectorResponse::Gamma(2.2, 9);
+  WriteRigCalibration(scratch.File("gamma.yaml"), rig);
+  const RigCalibration read = ReadRigCalibration(scratch.File("gamma.yaml"));
+  ASSERT_EQ(read.projector_response.table.size(), 9u);
+  for (size_t k = 0; k < 9; ++k) {
+    EXPECT_NEAR(read.projector_response.table[k], rig.projector_response.table[k], 1e-12);
+  }
+  // A decreasing curve is refused with the key's problem named.
+  std::string text = ReadFileToString(scratch.File("gamma.yaml"), "test");
+  const size_t at = text.find("projector_response");
+  ASSERT_NE(at, std::string::npos);
+  text = text.substr(0, at) +
+         "projector_response: !!opencv-matrix\n   rows: 1\n   cols: 4\n   dt: d\n"
+         "   data: [ 0., 0.8, 0.5, 1. ]\n";
+  WriteFileAtomic(scratch.File("bad.yaml"), text);
+  try {
+    ReadRigCalibration(scratch.File("bad.yaml"));
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("must not decrease"), std::string::npos) << e.what();
+  }
+}
+
 TEST(RigCalibration, MalformedFilesNameTheProblem) {
   testing::ScratchDir scratch;
   WriteRigCalibration(scratch.File("good.yaml"), TestRig());
@@ -87,6 +119,72 @@ TEST(RigCalibration, MalformedFilesNameTheProblem) {
                             "proj_from_cam_rotation", "det = 2.95");
   EXPECT_THROW_WITH_MESSAGE(ReadRigCalibration(scratch.File("missing.yaml")), Error, "missing.yaml",
                             "no such file");
+}
+
+// Found by fuzz/calibration_yaml_fuzz: a YAML whose top level is a sequence made OpenCV's
+// FileStorage::operator[] throw cv::Exception (an internal error, not a sope::Error).
+TEST(RigCalibration, TopLevelNotAMapIsAClearError) {
+  testing::ScratchDir scratch;
+  const std::string fuzzed =
+      "%YAML:1.0\n--" + std::string(120, '\0') + "-\nc%YAMamera_wmdth: 320\n";
+  for (const std::string& text : {std::string("%YAML:1.0\n---\n- 1\n- 2\n"), fuzzed}) {
+    WriteFileAtomic(scratch.File("seq.yaml"), text);
+    try {
+      ReadRigCalibration(scratch.File("seq.yaml"));
+      ADD_FAILURE() << "accepted: " << text;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("seq.yaml"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("not a calibration file"), std::string::npos)
+          << e.what();
+    }
+  }
+}
+
+// Found by fuzz/calibration_yaml_fuzz: OpenCV allocates rows × cols of a matrix before
+// reading its data, so a header saying 100000 × 100000 allocated 80 GB.
+TEST(RigCalibration, MatrixSizesAreCheckedBeforeReading) {
+  testing::ScratchDir scratch;
+  WriteRigCalibration(scratch.File("good.yaml"), TestRig());
+  const std::string good = ReadFileToString(scratch.File("good.yaml"), "test");
+  const size_t at = good.find("rows", good.find("camera_matrix"));
+  ASSERT_NE(at, std::string::npos);
+  for (const std::string& rows : {std::string("rows: 100000"), std::string("rows: -4"),
+                                  std::string("rows: 2")}) {
+    std::string text = good;
+    text.replace(at, good.find('\n', at) - at, rows);
+    WriteFileAtomic(scratch.File("big.yaml"), text);
+    try {
+      ReadRigCalibration(scratch.File("big.yaml"));
+      ADD_FAILURE() << "accepted " << rows;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("'camera_matrix'"), std::string::npos) << e.what();
+    }
+  }
+}
+
+// Found by fuzz/calibration_yaml_fuzz: OpenCV's YAML parser threw std::length_error (not a
+// cv::Exception) on this file, which escaped as an internal error.
+TEST(RigCalibration, ParserLengthErrorIsAClearError) {
+  testing::ScratchDir scratch;
+  const std::string text(
+      "%YAML:1.0\n---\ncamera_width: 320\ncamera_height: 240\ncamera_matrix: !!opencv-matri"
+      "x\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 400.0, 0.0, 160.0, 0.0, 400.0, 120.0"
+      ", 0.0, 0.0, 1.0 ]\ncamera_distortion: !pencv-matrix\n   rows: 3\n   cols: 3\n   dt: "
+      "d\n   : 320\ncamera_height: 240\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols"
+      ": 3\n   dt: d\n   data: [ 400.0, 0.0, 160.0, 0.0, 400.0, 120.0, 0.0, 0.0, 1.0 ]\ncam"
+      "era_distortion: !pencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 0.9689, "
+      "0.0, 0.2474, 0.0, 1.0, 0.0, -0.2474, 0.0, 0.9689 ]\norjfpr_om_cam_translation: !!ope"
+      "ncv-matrixdata: [ 0.9689, 0.0, 0.2474, 0.0, 1.0, 0.0, -0.2474, 0.0, 0.9689 ]\norjfpr"
+      "_om_cam_translation: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dtms_projector_p:x "
+      "0.4\nrms_stereo_px:",
+      745);
+  WriteFileAtomic(scratch.File("fuzzed.yaml"), text);
+  try {
+    ReadRigCalibration(scratch.File("fuzzed.yaml"));
+    ADD_FAILURE() << "the fuzzed file was accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("fuzzed.yaml"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace

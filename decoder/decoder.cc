@@ -17,6 +17,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "decoder/decoder_internal.h"
+#include "decoder/phase_decoder.h"
 #include "projector/patterns.h"
 
 namespace sope {
@@ -825,6 +826,7 @@ void DecoderOptions::Check() const {
   SOPE_CHECK(bit_decision == BitDecision::kAuto || bit_decision == BitDecision::kThreshold ||
                  bit_decision == BitDecision::kRobust,
              "invalid bit_decision {}", static_cast<int>(bit_decision));
+  phase.Check();
 }
 
 size_t CorrespondenceMap::CountValid() const {
@@ -839,6 +841,7 @@ CorrespondenceMap Decode(const FrameSet& frame_set, const DecoderOptions& option
 
 void Decode(const FrameSet& frame_set, const DecoderOptions& options, CorrespondenceMap* map) {
   SOPE_CHECK(map != nullptr, "Decode: no output map");
+  if (frame_set.manifest.HasPhase()) return DecodePhase(frame_set, options, map);
   options.Check();
   frame_set.Check();
   const FrameSetManifest& manifest = frame_set.manifest;

@@ -7,6 +7,7 @@
 #include <opencv2/core/mat.hpp>
 
 #include "core/frame_set.h"
+#include "decoder/phase_options.h"
 
 namespace sope {
 
@@ -60,10 +61,17 @@ struct DecoderOptions {
   double neighbour_tolerance_px = 2.0;
   // Threads for the decode loop; 1 = single-threaded.
   int num_threads = 1;
+  // Sets with phase frames (role `phase`): decoder/phase_decoder.h. min_contrast applies
+  // to their white − black when they have those frames; the speckle filter and threads too.
+  PhaseDecoderOptions phase;
 
   // Throws sope::Error naming an invalid value.
   void Check() const;
 };
+
+// CorrespondenceMap::step_x / step_y of a phase-decoded axis: its coordinates are
+// continuous, projector pixels.
+constexpr float kPhaseCoordinateStep = 1.0f / 64.0f;
 
 struct CorrespondenceMap {
   int projector_width = 0;
@@ -78,9 +86,11 @@ struct CorrespondenceMap {
   // CV_32FC1 in [0, 1]: the weakest bit's margin (|pattern − inverse|, or
   // |pattern − threshold| for bits decided without an inverse, which therefore reach at
   // most 0.5) relative to the white − black contrast (or, without white/black frames, to
-  // the largest |pattern − inverse|); 0 where invalid.
+  // the largest |pattern − inverse|); 0 where invalid. Phase sets: modulation / noise
+  // (≥ 0, a signal-to-noise ratio; decoder/phase_decoder.h).
   cv::Mat confidence;
-  // Quantum of the decoded coordinates, projector pixels (2^omitted low bits).
+  // Quantum of the decoded coordinates, projector pixels (2^omitted low bits); phase axes
+  // are continuous (sub-pixel) and report kPhaseCoordinateStep.
   float step_x = 1.0f;
   float step_y = 1.0f;
 

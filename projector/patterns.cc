@@ -1,5 +1,8 @@
 #include "projector/patterns.h"
 
+#include <algorithm>
+#include <cmath>
+
 #include <fmt/format.h>
 
 #include "core/error.h"
@@ -8,11 +11,47 @@ namespace sope {
 namespace {
 
 constexpr int kMaxProjectorSize = 1 << 15;
+constexpr double kTwoPi = 6.283185307179586476925286766559;
+constexpr int kMaxAutoGroups = 3;
+constexpr double kAutoPeriodRatio = 8.0;
+constexpr int kMaxSteps = 64;
+constexpr int kMaxPeriods = 8;
+
+bool IsPowerOfTwo(double value) {
+  int exponent = 0;
+  return value >= 1.0 && std::frexp(value, &exponent) == 0.5;
+}
+int Log2(double power_of_two) {
+  int exponent = 0;
+  std::frexp(power_of_two, &exponent);
+  return exponent - 1;
+}
+
+void AppendPhaseGroup(const PatternOptions& options, PatternAxis axis, double period,
+                      std::vector<FrameInfo>* frames) {
+  for (int k = 0; k < options.steps; ++k) {
+    FrameInfo frame;
+    frame.role = FrameRole::kPhase;
+    frame.axis = axis;
+    frame.period = period;
+    frame.shift = kTwoPi * k / options.steps;
+    frames->push_back(frame);
+  }
+}
 
 void AppendAxis(const PatternOptions& options, PatternAxis axis, std::vector<FrameInfo>* frames) {
   const int size = axis == PatternAxis::kX ? options.projector_width : options.projector_height;
+  if (options.family == PatternFamily::kPhase) {
+    for (double period : PhasePeriodsFor(options, size)) {
+      AppendPhaseGroup(options, axis, period, frames);
+    }
+    return;
+  }
   const int bits = BitsForSize(size);
-  for (int bit = bits - 1; bit >= options.skip_low_bits; --bit) {
+  const int lowest_bit = options.family == PatternFamily::kGrayPhase
+                             ? Log2(options.period) - (options.complementary_bit ? 1 : 0)
+                             : options.skip_low_bits;
+  for (int bit = bits - 1; bit >= lowest_bit; --bit) {
     for (bool inverted : {false, true}) {
       if (inverted && !options.inverted) continue;
       FrameInfo frame;
@@ -24,6 +63,9 @@ void AppendAxis(const PatternOptions& options, PatternAxis axis, std::vector<Fra
       frame.inverted = inverted;
       frames->push_back(frame);
     }
+  }
+  if (options.family == PatternFamily::kGrayPhase) {
+    AppendPhaseGroup(options, axis, options.period, frames);
   }
 }
 
@@ -57,6 +99,42 @@ std::string ToString(PatternAxes axes) {
   return "?";
 }
 
+std::string ToString(PatternFamily family) {
+  switch (family) {
+    case PatternFamily::kStripes: return "stripes";
+    case PatternFamily::kPhase: return "phase";
+    case PatternFamily::kGrayPhase: return "gray+phase";
+  }
+  return "?";
+}
+
+PatternFamily PatternFamilyFromString(const std::string& text, PatternCode* code) {
+  if (text == "phase") return PatternFamily::kPhase;
+  if (text == "gray+phase") {
+    if (code != nullptr) *code = PatternCode::kGray;
+    return PatternFamily::kGrayPhase;
+  }
+  if (text == "gray" || text == "binary") {
+    if (code != nullptr) *code = PatternCodeFromString(text);
+    return PatternFamily::kStripes;
+  }
+  SOPE_THROW("unknown pattern code '{}' (expected gray, binary, phase or gray+phase)", text);
+}
+
+std::vector<double> PhasePeriodsFor(const PatternOptions& options, int size) {
+  std::vector<double> periods = options.periods;
+  if (periods.empty()) {
+    for (double period = size; period >= kMinAutoPeriod &&
+                               periods.size() < static_cast<size_t>(kMaxAutoGroups);
+         period /= kAutoPeriodRatio) {
+      periods.push_back(period);
+    }
+    if (periods.empty()) periods.push_back(size);
+  }
+  std::sort(periods.begin(), periods.end(), std::greater<double>());
+  return periods;
+}
+
 PatternAxes PatternAxesFromString(const std::string& text) {
   if (text == "x") return PatternAxes::kX;
   if (text == "y") return PatternAxes::kY;
@@ -72,13 +150,82 @@ void PatternOptions::Check() const {
                                 axes == PatternAxes::kX ? 99 : BitsForSize(projector_height));
   SOPE_CHECK(skip_low_bits >= 0 && skip_low_bits < min_bits,
              "skip_low_bits {} must be in 0..{}", skip_low_bits, min_bits - 1);
-  SOPE_CHECK(inverted || white_black,
+  SOPE_CHECK(family == PatternFamily::kPhase || inverted || white_black,
              "patterns need inverse frames or white/black references to be decodable");
+  SOPE_CHECK(family == PatternFamily::kStripes || code == PatternCode::kGray,
+             "phase patterns combine with a Gray code only");
+  if (family == PatternFamily::kStripes) return;
+  SOPE_CHECK(steps >= 3 && steps <= kMaxSteps, "phase steps {} must be in 3..{}", steps,
+             kMaxSteps);
+  precompensate.Check();
+  if (family == PatternFamily::kPhase) {
+    SOPE_CHECK(periods.size() <= static_cast<size_t>(kMaxPeriods),
+               "{} phase periods (at most {})", periods.size(), kMaxPeriods);
+    for (double p : periods) {
+      SOPE_CHECK(std::isfinite(p) && p > 0.0,
+                 "phase period {} must be a positive, finite number of projector pixels", p);
+    }
+    for (size_t i = 0; i < periods.size(); ++i) {
+      for (size_t j = 0; j < i; ++j) {
+        SOPE_CHECK(periods[i] != periods[j], "phase period {} listed twice", periods[i]);
+      }
+    }
+    if (!periods.empty()) {
+      const double coarsest = *std::max_element(periods.begin(), periods.end());
+      for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+        if ((axis == PatternAxis::kX && this->axes == PatternAxes::kY) ||
+            (axis == PatternAxis::kY && this->axes == PatternAxes::kX)) {
+          continue;
+        }
+        const int size = axis == PatternAxis::kX ? projector_width : projector_height;
+        SOPE_CHECK(coarsest >= size,
+                   "the coarsest phase period {} px is below the projector {} ({} px): "
+                   "nothing would unwrap it (add a period ≥ {})", coarsest,
+                   axis == PatternAxis::kX ? "width" : "height", size, size);
+      }
+    }
+    return;
+  }
+  SOPE_CHECK(std::isfinite(period) && IsPowerOfTwo(period) && period >= (complementary_bit ? 2 : 1),
+             "gray+phase period {} must be a power of two ≥ {} (the Gray code's finest "
+             "stripe is one period wide)", period, complementary_bit ? 2 : 1);
+  for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+    if ((axis == PatternAxis::kX && axes == PatternAxes::kY) ||
+        (axis == PatternAxis::kY && axes == PatternAxes::kX)) {
+      continue;
+    }
+    const int size = axis == PatternAxis::kX ? projector_width : projector_height;
+    SOPE_CHECK(Log2(period) - (complementary_bit ? 1 : 0) < BitsForSize(size),
+               "gray+phase period {} is too wide for the projector {} ({} px)", period,
+               axis == PatternAxis::kX ? "width" : "height", size);
+  }
 }
 
-cv::Mat RenderPattern(const FrameInfo& frame, int projector_width, int projector_height) {
+cv::Mat RenderPattern(const FrameInfo& frame, int projector_width, int projector_height,
+                      const ProjectorResponse& precompensate) {
   SOPE_CHECK(projector_width > 0 && projector_height > 0, "invalid projector size {}x{}",
              projector_width, projector_height);
+  if (frame.role == FrameRole::kPhase) {
+    SOPE_CHECK(std::isfinite(frame.period) && frame.period > 0.0 && std::isfinite(frame.shift),
+               "invalid phase frame: period {}, shift {}", frame.period, frame.shift);
+    precompensate.Check();
+    const int size = frame.axis == PatternAxis::kX ? projector_width : projector_height;
+    std::vector<uint8_t> values(size);
+    for (int u = 0; u < size; ++u) {
+      const double intensity = 0.5 * (1.0 + std::cos(kTwoPi * u / frame.period - frame.shift));
+      values[u] = static_cast<uint8_t>(std::lround(255.0 * precompensate.Invert(intensity)));
+    }
+    cv::Mat image(projector_height, projector_width, CV_8UC1);
+    for (int y = 0; y < projector_height; ++y) {
+      uint8_t* row = image.ptr<uint8_t>(y);
+      if (frame.axis == PatternAxis::kX) {
+        std::copy(values.begin(), values.end(), row);
+      } else {
+        std::fill(row, row + projector_width, values[y]);
+      }
+    }
+    return image;
+  }
   if (frame.role == FrameRole::kWhite) {
     return cv::Mat(projector_height, projector_width, CV_8UC1, cv::Scalar(255));
   }
@@ -109,8 +256,8 @@ cv::Mat RenderPattern(const FrameInfo& frame, int projector_width, int projector
 std::vector<Pattern> GeneratePatterns(const PatternOptions& options) {
   std::vector<Pattern> patterns;
   for (const FrameInfo& frame : PatternFrames(options)) {
-    patterns.push_back(
-        {frame, RenderPattern(frame, options.projector_width, options.projector_height)});
+    patterns.push_back({frame, RenderPattern(frame, options.projector_width,
+                                             options.projector_height, options.precompensate)});
   }
   return patterns;
 }

@@ -10,10 +10,19 @@
 #include <opencv2/core/mat.hpp>
 
 #include "core/frame_set.h"
+#include "core/projector_response.h"
 
 namespace sope {
 
 enum class PatternAxes { kX, kY, kXY };
+// Stripes: Gray or binary code (PatternOptions::code). Phase: N-step phase-shift groups at
+// several periods, unwrapped hierarchically (temporal phase unwrapping). GrayPhase: a Gray
+// code whose finest block is one period wide (plus, optionally, one complementary bit half
+// a period wide) and one phase-shift group at that period.
+enum class PatternFamily { kStripes, kPhase, kGrayPhase };
+std::string ToString(PatternFamily family);
+// "gray" and "binary" (stripes), "phase", "gray+phase"; sets `code` for stripes.
+PatternFamily PatternFamilyFromString(const std::string& text, PatternCode* code);
 std::string ToString(PatternAxes axes);
 PatternAxes PatternAxesFromString(const std::string& text);  // "x", "y", "xy"
 
@@ -29,6 +38,20 @@ struct PatternOptions {
   // Omit this many least-significant bits: the decoded coordinate then has a step of
   // 2^skip_low_bits projector pixels (useful when the camera cannot resolve fine stripes).
   int skip_low_bits = 0;
+  PatternFamily family = PatternFamily::kStripes;
+  // kPhase: periods in projector pixels, any order, used on every coded axis; the coarsest
+  // must be ≥ the projector size on each axis (absolute). Empty: per axis the axis size,
+  // then 1/8 of the previous while ≥ kMinAutoPeriod, at most 3 groups.
+  std::vector<double> periods;
+  // kGrayPhase: the period (a power of two, projector pixels) and whether to add the
+  // complementary Gray bit half a period wide (guards the period boundaries).
+  double period = 16.0;
+  bool complementary_bit = true;
+  // Phase shifts per group: 2π·k / steps, k = 0 … steps − 1 (≥ 3).
+  int steps = 4;
+  // Pre-compensation: each sinusoid value I is shown as R⁻¹(I), so that a projector with
+  // response R shows the contract's sinusoid (identity: no compensation).
+  ProjectorResponse precompensate;
 
   // Throws sope::Error naming the invalid value.
   void Check() const;
@@ -36,8 +59,13 @@ struct PatternOptions {
 
 struct Pattern {
   FrameInfo info;  // role/axis/bit; `file` is the suggested name ("frame_07.png")
-  cv::Mat image;   // CV_8UC1, projector size, 0 or 255
+  cv::Mat image;   // CV_8UC1, projector size, 0 or 255 (stripes) or a sinusoid
 };
+
+// Smallest automatic period (PatternOptions::periods empty), projector pixels.
+constexpr double kMinAutoPeriod = 8.0;
+// The periods GeneratePatterns uses on an axis of `size` pixels, coarsest first.
+std::vector<double> PhasePeriodsFor(const PatternOptions& options, int size);
 
 // Gray code: neighbouring values differ in exactly one bit.
 inline uint32_t GrayFromBinary(uint32_t value) { return value ^ (value >> 1); }
@@ -56,10 +84,14 @@ inline bool PatternBit(PatternCode code, uint32_t coordinate, int bit) {
 }
 
 // The sequence in display order: white, black, then per axis (x before y) the bits from
-// the most significant down, each followed by its inverse when requested.
+// the most significant down, each followed by its inverse when requested; then (phase
+// families) the phase groups of that axis, coarsest first, shifts in increasing order.
 std::vector<Pattern> GeneratePatterns(const PatternOptions& options);
-// The image of one frame (white, black or a code bit) at the given projector size.
-cv::Mat RenderPattern(const FrameInfo& frame, int projector_width, int projector_height);
+// The image of one frame (white, black, a code bit or a sinusoid) at the given projector
+// size. A sinusoid is I(u) = ½·(1 + cos(2π·u/period − shift)) at the pixel centres u,
+// shown as round(255 · R⁻¹(I)) with R = `precompensate`.
+cv::Mat RenderPattern(const FrameInfo& frame, int projector_width, int projector_height,
+                      const ProjectorResponse& precompensate = {});
 // Manifest describing GeneratePatterns(options) captured by a camera of the given size.
 FrameSetManifest MakePatternManifest(const PatternOptions& options, int camera_width,
                                      int camera_height);

@@ -1,6 +1,7 @@
 #include "projector/patterns.h"
 
 #include <bitset>
+#include <cmath>
 #include <cstdint>
 #include <random>
 #include <set>
@@ -331,6 +332,122 @@ INSTANTIATE_TEST_SUITE_P(Sizes, OpenCvGrayCode,
                          [](const ::testing::TestParamInfo<cv::Size>& info) {
                            return fmt::format("{}x{}", info.param.width, info.param.height);
                          });
+
+}  // namespace
+}  // namespace sope
+
+namespace sope {
+namespace {
+
+constexpr double kTwoPiTest = 6.283185307179586476925286766559;
+
+TEST(PhasePatterns, SequenceAndManifestFollowTheContract) {
+  PatternOptions options;
+  options.projector_width = 1024;
+  options.projector_height = 768;
+  options.family = PatternFamily::kPhase;
+  options.periods = {1024, 64, 8};
+  options.steps = 4;
+  const std::vector<Pattern> patterns = GeneratePatterns(options);
+  // white, black, then 3 groups × 4 shifts per axis.
+  ASSERT_EQ(patterns.size(), 2u + 2u * 12u);
+  const FrameSetManifest manifest = MakePatternManifest(options, 320, 240);
+  ASSERT_EQ(manifest.frames.size(), patterns.size());
+  const std::vector<PhaseGroup> x = manifest.PhaseGroups(PatternAxis::kX);
+  const std::vector<PhaseGroup> y = manifest.PhaseGroups(PatternAxis::kY);
+  ASSERT_EQ(x.size(), 3u);
+  ASSERT_EQ(y.size(), 3u);
+  EXPECT_EQ(x[0].period, 1024.0);
+  EXPECT_TRUE(x[0].absolute);
+  EXPECT_TRUE(y[0].absolute);  // 1024 ≥ 768
+  EXPECT_EQ(x[2].period, 8.0);
+  ASSERT_EQ(x[2].shifts.size(), 4u);
+  EXPECT_NEAR(x[2].shifts[1], kTwoPiTest / 4, 1e-12);
+  // Every sinusoid is the contract's I(u) = ½(1 + cos(2πu/period − shift)), 8-bit.
+  for (const Pattern& pattern : patterns) {
+    if (pattern.info.role != FrameRole::kPhase) continue;
+    ASSERT_EQ(pattern.image.type(), CV_8UC1);
+    const bool is_x = pattern.info.axis == PatternAxis::kX;
+    for (int u : {0, 1, 5, 37, 500, 767}) {
+      const double expected =
+          255.0 * 0.5 * (1.0 + std::cos(kTwoPiTest * u / pattern.info.period - pattern.info.shift));
+      const int value = is_x ? pattern.image.at<uint8_t>(13, u) : pattern.image.at<uint8_t>(u, 13);
+      EXPECT_LE(std::abs(value - expected), 0.5 + 1e-9) << pattern.info.file << " u " << u;
+    }
+  }
+}
+
+TEST(PhasePatterns, AutomaticPeriodsAndGrayPlusPhase) {
+  PatternOptions options;
+  options.projector_width = 1280;
+  options.projector_height = 800;
+  options.family = PatternFamily::kPhase;
+  options.axes = PatternAxes::kX;
+  options.white_black = false;
+  EXPECT_EQ(PhasePeriodsFor(options, 1280), (std::vector<double>{1280, 160, 20}));
+  EXPECT_EQ(MakePatternManifest(options, 64, 48).frames.size(), 12u);
+
+  options.family = PatternFamily::kGrayPhase;
+  options.period = 16;
+  options.steps = 4;
+  options.axes = PatternAxes::kXY;
+  options.white_black = true;
+  const FrameSetManifest manifest = MakePatternManifest(options, 64, 48);
+  // Gray bits 10..3 (x, 11 bits) and 9..3 (y, 10 bits) with inverses, one group per axis.
+  EXPECT_EQ(manifest.AxisLowestBit(PatternAxis::kX), 3);
+  EXPECT_EQ(manifest.AxisBits(PatternAxis::kX), 11);
+  EXPECT_EQ(manifest.PhaseGroups(PatternAxis::kY).size(), 1u);
+  EXPECT_EQ(manifest.frames.size(), 2u + 2u * (8 + 7) + 2u * 4);
+  options.complementary_bit = false;
+  EXPECT_EQ(MakePatternManifest(options, 64, 48).AxisLowestBit(PatternAxis::kX), 4);
+}
+
+TEST(PhasePatterns, PrecompensationInvertsTheResponse) {
+  PatternOptions options;
+  options.projector_width = 64;
+  options.projector_height = 8;
+  options.axes = PatternAxes::kX;
+  options.family = PatternFamily::kPhase;
+  options.periods = {64};
+  options.steps = 3;
+  options.precompensate = ProjectorResponse::Gamma(2.2, 1025);
+  for (const Pattern& pattern : GeneratePatterns(options)) {
+    if (pattern.info.role != FrameRole::kPhase) continue;
+    for (int u = 0; u < 64; ++u) {
+      const double shown = std::pow(pattern.image.at<uint8_t>(0, u) / 255.0, 2.2);
+      const double wanted =
+          0.5 * (1.0 + std::cos(kTwoPiTest * u / pattern.info.period - pattern.info.shift));
+      // One 8-bit step at the steepest part of v^2.2 is 2.2/255 of the range.
+      EXPECT_NEAR(shown, wanted, 0.01) << u;
+    }
+  }
+}
+
+TEST(PhasePatterns, InvalidOptionsNameTheValue) {
+  PatternOptions options;
+  options.family = PatternFamily::kPhase;
+  options.periods = {1024, 0};
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "phase period 0");
+  options.periods = {512, 64};  // coarsest below the 1024 px width
+  try {
+    options.Check();
+    ADD_FAILURE() << "no error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("coarsest phase period 512"), std::string::npos);
+  }
+  options.periods = {1024};
+  options.steps = 2;
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "phase steps 2");
+  options.steps = 4;
+  options.family = PatternFamily::kGrayPhase;
+  options.period = 12;
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "gray+phase period 12");
+  PatternCode code = PatternCode::kBinary;
+  EXPECT_EQ(PatternFamilyFromString("gray+phase", &code), PatternFamily::kGrayPhase);
+  EXPECT_EQ(code, PatternCode::kGray);
+  EXPECT_THROW_WITH_MESSAGE(PatternFamilyFromString("sine", &code), Error,
+                            "unknown pattern code 'sine'");
+}
 
 }  // namespace
 }  // namespace sope

@@ -231,4 +231,38 @@ double SymmetricRotationErrorDeg(const Eigen::Matrix3d& rotation_estimate,
   return best;
 }
 
+void PoseTruthModelOptions::Check() const {
+  SOPE_CHECK(samples >= 1, "pose comparison: the number of surface samples must be ≥ 1, got {}",
+             samples);
+}
+
+PoseTruthModel MakePoseTruthModel(const TriangleMesh& mesh,
+                                  const PoseTruthModelOptions& options) {
+  options.Check();
+  PoseTruthModel model;
+  model.samples = SampleSurface(mesh, options.samples, options.seed);
+  Eigen::Vector3f lo, hi;
+  mesh.Bounds(&lo, &hi);
+  model.center = (0.5 * (lo + hi)).cast<double>();
+  model.diameter = mesh.BoundingDiagonal();
+  model.symmetry = DetectSymmetry(mesh);
+  return model;
+}
+
+PoseComparison ComparePoses(const Rigid3d& estimate, const Rigid3d& truth,
+                            const PoseTruthModel& model) {
+  PoseComparison out;
+  out.rotation_error_deg =
+      SymmetricRotationErrorDeg(estimate.rotation, truth.rotation, model.symmetry);
+  out.center_error_m = (estimate * model.center - truth * model.center).norm();
+  out.adds_m = AverageDistanceSymmetric(model.samples, estimate, truth);
+  out.diameter_m = model.diameter;
+  return out;
+}
+
+PoseComparison ComparePoses(const Rigid3d& estimate, const Rigid3d& truth,
+                            const TriangleMesh& mesh) {
+  return ComparePoses(estimate, truth, MakePoseTruthModel(mesh));
+}
+
 }  // namespace sope

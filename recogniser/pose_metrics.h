@@ -49,4 +49,41 @@ double SymmetricRotationErrorDeg(const Eigen::Matrix3d& rotation_estimate,
                                  const Eigen::Matrix3d& rotation_truth,
                                  const ModelSymmetry& symmetry);
 
+// ---------------------------------------------------------------------------------------
+// The comparison of an estimated pose with the ground truth — the one definition the
+// evaluation, `sope scan-and-recognise` (results "ground_truth"), the tests and the
+// benches share.
+
+// What the comparison needs of the true object, computed once per mesh (the symmetry
+// detection is the expensive part): surface samples for ADD-S, the bounding-box centre,
+// the bounding-box diagonal ("diameter") and the symmetries.
+struct PoseTruthModel {
+  std::vector<Eigen::Vector3f> samples;
+  Eigen::Vector3d center = Eigen::Vector3d::Zero();
+  double diameter = 0.0;
+  ModelSymmetry symmetry;
+};
+struct PoseTruthModelOptions {
+  int samples = 10000;   // surface samples for ADD-S
+  uint64_t seed = 1;     // their seed
+  void Check() const;
+};
+// `mesh` in its model frame (the frame both poses map from), metres.
+PoseTruthModel MakePoseTruthModel(const TriangleMesh& mesh,
+                                  const PoseTruthModelOptions& options = {});
+
+struct PoseComparison {
+  double rotation_error_deg = 0.0;  // modulo the object's symmetry
+  double center_error_m = 0.0;      // of the bounding-box centre
+  double adds_m = 0.0;              // ADD-S of the true model under the two poses
+  double diameter_m = 0.0;          // bounding-box diagonal of the true model
+  double adds_over_diameter() const { return adds_m / diameter_m; }
+};
+// `estimate` and `truth` are cam_from_model of the same model frame.
+PoseComparison ComparePoses(const Rigid3d& estimate, const Rigid3d& truth,
+                            const PoseTruthModel& model);
+// The same, building the truth model of `mesh` (default options) first.
+PoseComparison ComparePoses(const Rigid3d& estimate, const Rigid3d& truth,
+                            const TriangleMesh& mesh);
+
 }  // namespace sope

@@ -3,6 +3,7 @@
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
 
+#include "core/error.h"
 #include "simulator/primitives.h"
 #include "simulator/procedural_objects.h"
 
@@ -76,6 +77,45 @@ TEST(PoseMetrics, SymmetricRotationErrorIgnoresOnlyTheSymmetry) {
   none.rotations = {Eigen::Matrix3d::Identity()};
   EXPECT_NEAR(SymmetricRotationErrorDeg(truth * Turn(Eigen::Vector3d::UnitZ(), 77), truth, none),
               77.0, 1e-6);
+}
+
+TEST(PoseMetrics, ComparePosesMeasuresRotationCentreAndAddS) {
+  const TriangleMesh box = MakeBox(0.2, 0.1, 0.05);
+  const Rigid3d truth(Turn(Eigen::Vector3d(1, -2, 0.5), 50), Eigen::Vector3d(0.02, -0.01, 0.6));
+  const PoseTruthModel model = MakePoseTruthModel(box);
+  EXPECT_NEAR(model.diameter, std::sqrt(0.2 * 0.2 + 0.1 * 0.1 + 0.05 * 0.05), 1e-6);
+  // The truth itself: no error.
+  PoseComparison c = ComparePoses(truth, truth, model);
+  EXPECT_NEAR(c.rotation_error_deg, 0.0, 1e-6);
+  EXPECT_NEAR(c.center_error_m, 0.0, 1e-12);
+  EXPECT_NEAR(c.adds_m, 0.0, 1e-9);
+  // Shifted 3 mm: the centre is 3 mm off, ADD-S at most that.
+  Rigid3d shifted = truth;
+  shifted.translation += truth.rotation * Eigen::Vector3d(0.003, 0, 0);
+  c = ComparePoses(shifted, truth, model);
+  EXPECT_NEAR(c.center_error_m, 0.003, 1e-9);
+  EXPECT_NEAR(c.rotation_error_deg, 0.0, 1e-6);
+  EXPECT_GT(c.adds_m, 0.0);
+  EXPECT_LE(c.adds_m, 0.003 + 1e-9);
+  // A half-turn about the box's own axis through its centre is a symmetry: no rotation
+  // error, no centre error, ADD-S at the sampling floor; turned 10° about it is 10° off.
+  const Rigid3d flipped(truth.rotation * Turn(Eigen::Vector3d::UnitZ(), 180), truth.translation);
+  c = ComparePoses(flipped, truth, model);
+  EXPECT_NEAR(c.rotation_error_deg, 0.0, 0.5);
+  EXPECT_NEAR(c.center_error_m, 0.0, 1e-9);
+  EXPECT_LT(c.adds_m, 0.002);
+  const Rigid3d turned(truth.rotation * Turn(Eigen::Vector3d::UnitZ(), 10), truth.translation);
+  EXPECT_NEAR(ComparePoses(turned, truth, model).rotation_error_deg, 10.0, 0.5);
+  // The mesh overload is the default truth model; explicit samples give exactly the ADD-S
+  // of those samples.
+  EXPECT_EQ(ComparePoses(shifted, truth, box).adds_m, ComparePoses(shifted, truth, model).adds_m);
+  PoseTruthModelOptions options;
+  options.samples = 2000;
+  options.seed = 5;
+  EXPECT_EQ(ComparePoses(turned, truth, MakePoseTruthModel(box, options)).adds_m,
+            AverageDistanceSymmetric(SampleSurface(box, 2000, 5), turned, truth));
+  options.samples = 0;
+  EXPECT_THROW(MakePoseTruthModel(box, options), Error);
 }
 
 }  // namespace

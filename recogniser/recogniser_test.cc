@@ -16,6 +16,7 @@
 #include "core/error.h"
 #include "core/statistics.h"
 #include "core/units.h"
+#include "recogniser/pose_metrics.h"
 #include "recogniser/stages.h"
 #include "recogniser/tools/database_builder.h"
 #include "recogniser/tools/synthetic_queries.h"
@@ -25,24 +26,6 @@
 namespace sope {
 namespace {
 
-
-// ADD-S (Hinterstoisser et al. 2012): mean distance from the model's vertices under one
-// pose to the nearest vertex under the other, metres (brute force on a vertex subsample).
-double AddS(const TriangleMesh& mesh, const Rigid3d& a, const Rigid3d& b) {
-  std::vector<Eigen::Vector3d> pa, pb;
-  const size_t stride = std::max<size_t>(1, mesh.vertices.size() / 600);
-  for (size_t i = 0; i < mesh.vertices.size(); i += stride) {
-    pa.push_back(a * mesh.vertices[i].cast<double>());
-    pb.push_back(b * mesh.vertices[i].cast<double>());
-  }
-  double sum = 0.0;
-  for (const Eigen::Vector3d& p : pa) {
-    double best = std::numeric_limits<double>::max();
-    for (const Eigen::Vector3d& q : pb) best = std::min(best, (p - q).squaredNorm());
-    sum += std::sqrt(best);
-  }
-  return sum / pa.size();
-}
 
 class RecogniserTest : public ::testing::Test {
  protected:
@@ -127,11 +110,12 @@ TEST_F(RecogniserTest, RecognisesModelsAndPosesFromOffGridViews) {
     flagged.push_back(result.flagged_fraction);
     if (best.model != q.model) continue;
     EXPECT_TRUE(best.refined);
-    const double error = AddS(q.mesh, best.cam_from_model, q.query.cam_from_model);
+    const PoseComparison comparison =
+        ComparePoses(best.cam_from_model, q.query.cam_from_model, q.mesh);
+    const double error = comparison.adds_m;
     adds.push_back(error / truth.diameter);
     adds_ok += error < 0.1 * truth.diameter;
-    center_errors.push_back(
-        (best.cam_from_model * truth.center - q.query.cam_from_model * truth.center).norm());
+    center_errors.push_back(comparison.center_error_m);
   }
   const int n = static_cast<int>(queries.size());
   std::printf("%d queries: model top-1 %d, class top-1 %d, class in top-4 %d; correct model: "
@@ -162,7 +146,8 @@ TEST_F(RecogniserTest, PoseOnlyWithTheModelKnown) {
     ASSERT_FALSE(result.empty());
     EXPECT_EQ(result.best().model, q.model);
     EXPECT_EQ(result.flagged, db_->model(q.model).num_views);
-    const double error = AddS(q.mesh, result.best().cam_from_model, q.query.cam_from_model);
+    const double error =
+        ComparePoses(result.best().cam_from_model, q.query.cam_from_model, q.mesh).adds_m;
     good += error < 0.1 * db_->model(q.model).diameter;
     errors.push_back(error / db_->model(q.model).diameter);
   }

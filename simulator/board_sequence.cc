@@ -9,6 +9,7 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/json.h"
 #include "simulator/primitives.h"
 
 namespace sope {
@@ -20,15 +21,6 @@ constexpr const char* kPosesFile = "gt_board_poses.json";
 // Points sampled along each edge of the board outline for the in-image test (lens
 // distortion bends the edges).
 constexpr int kOutlineSamplesPerEdge = 12;
-
-nlohmann::json PoseJson(const Rigid3d& pose) {
-  nlohmann::json rotation = nlohmann::json::array();
-  for (int r = 0; r < 3; ++r) {
-    rotation.push_back({pose.rotation(r, 0), pose.rotation(r, 1), pose.rotation(r, 2)});
-  }
-  return {{"rotation", rotation},
-          {"translation", {pose.translation.x(), pose.translation.y(), pose.translation.z()}}};
-}
 
 // The outline of the squares plus half the margin, board frame.
 std::vector<Eigen::Vector3d> OutlineInBoard(const BoardSpec& board,
@@ -220,7 +212,7 @@ std::vector<Rigid3d> WriteBoardSequence(const std::string& directory, VirtualRig
       });
   nlohmann::json views = nlohmann::json::array();
   for (int v = 0; v < static_cast<int>(poses.size()); ++v) {
-    views.push_back({{"name", BoardViewName(v)}, {"cam_from_board", internal::PoseJson(poses[v])}});
+    views.push_back({{"name", BoardViewName(v)}, {"cam_from_board", Rigid3dToJson(poses[v])}});
   }
   const nlohmann::json root = {
       {"format", "sope-gt-board-poses/1"},

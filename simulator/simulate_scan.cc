@@ -4,23 +4,12 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/json.h"
 
 namespace sope {
 namespace {
 
 constexpr const char* kCalibrationFile = "calibration.yaml";
-
-nlohmann::json PoseJson(const Rigid3d& cam_from_model) {
-  nlohmann::json rotation = nlohmann::json::array();
-  for (int r = 0; r < 3; ++r) {
-    rotation.push_back({cam_from_model.rotation(r, 0), cam_from_model.rotation(r, 1),
-                        cam_from_model.rotation(r, 2)});
-  }
-  return {{"rotation", rotation},
-          {"translation",
-           {cam_from_model.translation.x(), cam_from_model.translation.y(),
-            cam_from_model.translation.z()}}};
-}
 
 }  // namespace
 
@@ -62,7 +51,7 @@ void WriteSimulatedScan(const std::string& directory, const SimulatedScan& scan)
   WriteImageAtomic(JoinPath(out, "gt_object_id.png"), object_id);
   nlohmann::json objects = nlohmann::json::array();
   for (const SceneObject& object : scan.scene.objects) {
-    objects.push_back({{"cam_from_model", PoseJson(object.cam_from_model)},
+    objects.push_back({{"cam_from_model", Rigid3dToJson(object.cam_from_model)},
                        {"albedo", object.albedo}});
   }
   WriteFileAtomic(JoinPath(out, "gt_pose.json"),

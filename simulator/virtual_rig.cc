@@ -482,6 +482,15 @@ void SensorOptions::Check() const {
              "SensorOptions: read_noise must be >= 0, got {}", read_noise);
   SOPE_CHECK(std::isfinite(shot_noise) && shot_noise >= 0.0,
              "SensorOptions: shot_noise must be >= 0, got {}", shot_noise);
+  SOPE_CHECK(std::isfinite(projector_gamma) && projector_gamma > 0.0 && projector_gamma <= 10.0,
+             "SensorOptions: projector_gamma must be in (0, 10], got {}", projector_gamma);
+  SOPE_CHECK(std::isfinite(projector_black_level) && projector_black_level >= 0.0 &&
+                 projector_black_level < 1.0,
+             "SensorOptions: projector_black_level must be in [0, 1), got {}",
+             projector_black_level);
+  SOPE_CHECK(std::isfinite(projector_saturation) && projector_saturation > 0.0 &&
+                 projector_saturation <= 1.0,
+             "SensorOptions: projector_saturation must be in (0, 1], got {}", projector_saturation);
   SOPE_CHECK(supersample >= 1 && supersample <= 8,
              "SensorOptions: supersample must be in [1, 8], got {}", supersample);
 }
@@ -740,6 +749,16 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
                bad_position.x, bad_position.y,
                projector_image.at<float>(bad_position.y, bad_position.x));
     pattern = projector_image.clone();
+  }
+  const SensorOptions& o = d.options;
+  if (o.projector_gamma != 1.0 || o.projector_black_level != 0.0 || o.projector_saturation != 1.0) {
+    const float black = static_cast<float>(o.projector_black_level);
+    const float saturation = static_cast<float>(o.projector_saturation);
+    const float gamma = static_cast<float>(o.projector_gamma);
+    pattern.forEach<float>([&](float& value, const int*) {
+      const float v = std::min(value, saturation) / saturation;
+      value = black + (1.0f - black) * std::pow(std::max(v, 0.0f), gamma);
+    });
   }
   if (d.options.defocus_sigma_px > 0.0) {
     cv::GaussianBlur(pattern, pattern, cv::Size(), d.options.defocus_sigma_px,

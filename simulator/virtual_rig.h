@@ -35,6 +35,12 @@ struct SensorOptions {
   double exposure = 230.0;
   // Camera response: grey = 255 · (linear / 255)^(1/gamma).
   double gamma = 2.2;
+  // Projector response: a pixel value v ∈ [0, 1] emits
+  //   r(v) = black_level + (1 − black_level) · (min(v, saturation) / saturation)^gamma
+  // of a white pixel's light (before the projector's defocus). The defaults are linear.
+  double projector_gamma = 1.0;
+  double projector_black_level = 0.0;  // in [0, 1)
+  double projector_saturation = 1.0;   // in (0, 1]: values above it emit full white
   // Projector defocus, Gaussian σ in projector pixels (0 = sharp).
   double defocus_sigma_px = 0.5;
   // Camera optics blur, Gaussian σ in camera pixels (0 = none).
@@ -94,7 +100,8 @@ class VirtualRig {
   // geometry. Throws sope::Error on an invalid mesh.
   void SetScene(const Scene& scene);
   // Camera image (CV_8UC1, camera size) of the scene lit by `projector_image` (CV_8UC1
-  // or CV_32FC1 in [0,1], projector size) plus ambient light, with fresh noise.
+  // or CV_32FC1 in [0,1], projector size; shown through the projector response of
+  // SensorOptions) plus ambient light, with fresh noise.
   cv::Mat Capture(const cv::Mat& projector_image);
   const GroundTruth& ground_truth() const;
   const RigCalibration& calibration() const;

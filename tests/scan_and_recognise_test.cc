@@ -126,16 +126,13 @@ TEST_F(ScanAndRecognise, VirtualRigLoopRecognisesClassAndPose) {
       continue;
     }
     ++correct;
-    const double rotation_error = SymmetricRotationErrorDeg(
-        best.cam_from_model.rotation, scene.cam_from_model.rotation, DetectSymmetry(scene.mesh));
-    Eigen::Vector3f lo, hi;
-    scene.mesh.Bounds(&lo, &hi);
-    const Eigen::Vector3d center = (0.5 * (lo + hi)).cast<double>();
-    const double center_error =
-        (best.cam_from_model * center - scene.cam_from_model * center).norm();
-    const double diameter = scene.mesh.BoundingDiagonal();
-    const double adds = AverageDistanceSymmetric(SampleSurface(scene.mesh, 10000),
-                                                 best.cam_from_model, scene.cam_from_model);
+    // Rotation modulo the symmetry, bounding-box centre, ADD-S (recogniser/pose_metrics.h).
+    const PoseComparison error =
+        ComparePoses(best.cam_from_model, scene.cam_from_model, scene.mesh);
+    const double rotation_error = error.rotation_error_deg;
+    const double center_error = error.center_error_m;
+    const double diameter = error.diameter_m;
+    const double adds = error.adds_m;
     std::printf("; rotation error %.2f° (mod symmetry), centre %.2f mm, ADD-S %.2f mm (%.2f%% "
                 "of %.0f mm)\n",
                 rotation_error, 1e3 * center_error, 1e3 * adds, 100 * adds / diameter,

@@ -346,15 +346,20 @@ DatabaseData BuildDatabase(const std::string& models_dir, const DatabaseOptions&
   return BuildDatabase(ListModels(models_dir), options, progress, summary, threads);
 }
 
-DatabaseData BuildDatabase(const std::vector<ModelSource>& sources, const DatabaseOptions& options,
-                           const BuildProgress& progress, BuildSummary* summary, int threads) {
-  options.Check();
-  SOPE_CHECK(!sources.empty(), "BuildDatabase: no models");
-  const auto start = Clock::now();
-  BuildSummary local_summary;
-  BuildSummary& report = summary != nullptr ? *summary : local_summary;
-  report = BuildSummary();
+namespace {
 
+// Every view of every loadable model, rendered on this thread and described on `threads`
+// workers; results[slot] belongs to loaded[result_model[slot]].
+struct DescribedViews {
+  std::vector<LoadedModel> loaded;
+  std::vector<ViewResult> results;
+  std::vector<int> result_model;
+  int slots = 0;
+};
+
+DescribedViews RenderAndDescribe(const std::vector<ModelSource>& sources,
+                                 const DatabaseOptions& options, const BuildProgress& progress,
+                                 int threads, BuildSummary* report) {
   const std::vector<Viewpoint> viewpoints = MakeViewpoints(options.layout, options.views_per_model);
   const CameraModel camera =
       MakePinhole(options.render.width, options.render.height, options.render.horizontal_fov);
@@ -366,26 +371,23 @@ DatabaseData BuildDatabase(const std::vector<ModelSource>& sources, const Databa
 
   if (threads <= 0) threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   const int total_views = static_cast<int>(sources.size() * viewpoints.size());
-  std::vector<LoadedModel> loaded;
-  std::vector<ViewResult> results;
-  std::vector<int> result_model;  // index into `loaded` per result slot
+  DescribedViews out;
   JobQueue queue(static_cast<size_t>(2 * threads));
   std::atomic<int> done{0};
   std::atomic<int64_t> describe_microseconds{0};
   // Workers write into `results` slots; the vector is fully sized before they start.
-  results.resize(total_views);
+  out.results.resize(total_views);
   std::vector<std::thread> workers;
   auto worker = [&]() {
     while (std::optional<ViewJob> job = queue.Pop()) {
       ViewResult result = DescribeJob(*job, options);
       describe_microseconds += static_cast<int64_t>(result.seconds * 1e6);
-      results[job->slot] = std::move(result);
+      out.results[job->slot] = std::move(result);
       ++done;
     }
   };
   for (int t = 0; t < threads; ++t) workers.emplace_back(worker);
 
-  int slot = 0;
   double render_seconds = 0.0;
   try {
     for (const ModelSource& source : sources) {
@@ -401,16 +403,16 @@ DatabaseData BuildDatabase(const std::vector<ModelSource>& sources, const Databa
       }
       if (!model) {
         spdlog::warn("skipping model {}: {}", source.path, reason);
-        report.skipped.push_back(source.path + ": " + reason);
+        report->skipped.push_back(source.path + ": " + reason);
         continue;
       }
-      const int model_index = static_cast<int>(loaded.size());
+      const int model_index = static_cast<int>(out.loaded.size());
       const double distance =
           std::max(options.render.distance,
                    options.render.fit_margin * model->record.bounding_radius / std::sin(half_fov));
       for (const Viewpoint& viewpoint : viewpoints) {
         ViewJob job;
-        job.slot = slot++;
+        job.slot = out.slots++;
         job.model = model_index;
         job.viewpoint = viewpoint;
         job.distance = distance;
@@ -418,11 +420,11 @@ DatabaseData BuildDatabase(const std::vector<ModelSource>& sources, const Databa
         const auto render_start = Clock::now();
         job.cloud = renderer.Render(job.cam_from_model);
         render_seconds += SecondsSince(render_start);
-        result_model.push_back(model_index);
+        out.result_model.push_back(model_index);
         queue.Push(std::move(job));
         if (progress) progress(done.load(), total_views);
       }
-      loaded.push_back(std::move(*model));
+      out.loaded.push_back(std::move(*model));
     }
   } catch (...) {
     queue.Close();
@@ -432,52 +434,124 @@ DatabaseData BuildDatabase(const std::vector<ModelSource>& sources, const Databa
   queue.Close();
   for (std::thread& t : workers) t.join();
   if (progress) progress(total_views, total_views);
-  report.render_seconds = render_seconds;
-  report.describe_seconds = describe_microseconds.load() * 1e-6;
+  report->render_seconds = render_seconds;
+  report->describe_seconds = describe_microseconds.load() * 1e-6;
+  return out;
+}
 
-  // Assemble the views that were described, model by model.
-  DatabaseData data;
-  data.options = options;
+// The views that were described, model by model, into data.models/views/classes; returns
+// the result slot of each stored view. Models without a kept view are skipped.
+std::vector<int> AssembleViews(const DescribedViews& described, DatabaseData* data,
+                               BuildSummary* report) {
   std::vector<int> kept;
-  for (size_t m = 0; m < loaded.size(); ++m) {
-    ModelRecord record = loaded[m].record;
-    const int first = static_cast<int>(data.views.size());
+  for (size_t m = 0; m < described.loaded.size(); ++m) {
+    ModelRecord record = described.loaded[m].record;
+    const int first = static_cast<int>(data->views.size());
     int views = 0;
-    for (int s = 0; s < slot; ++s) {
-      if (result_model[s] != static_cast<int>(m)) continue;
-      if (!results[s].ok) {
+    for (int s = 0; s < described.slots; ++s) {
+      if (described.result_model[s] != static_cast<int>(m)) continue;
+      const ViewResult& result = described.results[s];
+      if (!result.ok) {
         spdlog::debug("model {}: view (θ {:.1f}°, φ {:.1f}°) dropped: {}", record.name,
-                      results[s].record.viewpoint.theta * 180.0 / M_PI,
-                      results[s].record.viewpoint.phi * 180.0 / M_PI, results[s].error);
-        ++report.dropped_views;
+                      result.record.viewpoint.theta * 180.0 / M_PI,
+                      result.record.viewpoint.phi * 180.0 / M_PI, result.error);
+        ++report->dropped_views;
         continue;
       }
-      ViewRecord view = results[s].record;
-      view.model = static_cast<int32_t>(data.models.size());
-      data.views.push_back(view);
+      ViewRecord view = result.record;
+      view.model = static_cast<int32_t>(data->models.size());
+      data->views.push_back(view);
       kept.push_back(s);
       ++views;
     }
     if (views == 0) {
       const std::string reason = "no view kept enough points after pre-processing";
       spdlog::warn("skipping model {}: {}", record.source_path, reason);
-      report.skipped.push_back(record.source_path + ": " + reason);
+      report->skipped.push_back(record.source_path + ": " + reason);
       continue;
     }
-    auto it = std::find(data.classes.begin(), data.classes.end(), record.class_name);
-    if (it == data.classes.end()) {
-      data.classes.push_back(record.class_name);
-      it = data.classes.end() - 1;
+    auto it = std::find(data->classes.begin(), data->classes.end(), record.class_name);
+    if (it == data->classes.end()) {
+      data->classes.push_back(record.class_name);
+      it = data->classes.end() - 1;
     }
-    record.class_index = static_cast<int>(it - data.classes.begin());
+    record.class_index = static_cast<int>(it - data->classes.begin());
     record.first_view = first;
     record.num_views = views;
-    data.models.push_back(record);
+    data->models.push_back(record);
   }
+  return kept;
+}
+
+// Standardises the coarse vectors (per-dimension mean and standard deviation, a constant
+// dimension keeps scale 1, optionally × √(block length) so every block weighs the same),
+// sets the distance scales, and trains the hasher and encodes every view.
+void StandardiseAndHash(const DatabaseData::RowMatrix& coarse, const DatabaseOptions& options,
+                        DatabaseData* data, BuildSummary* report) {
+  const int n = static_cast<int>(coarse.rows());
+  const int coarse_dim = static_cast<int>(coarse.cols());
+  const int fine_dim = static_cast<int>(data->fine.cols());
+  data->coarse_mean = coarse.colwise().mean().transpose();
+  data->coarse_scale.resize(coarse_dim);
+  for (int d = 0; d < coarse_dim; ++d) {
+    const double variance =
+        (coarse.col(d).array() - data->coarse_mean[d]).square().sum() / std::max(1, n);
+    const double sigma = std::sqrt(variance);
+    data->coarse_scale[d] = sigma > 1e-9 ? static_cast<float>(sigma) : 1.0f;
+  }
+  if (options.equal_block_weights) {
+    int offset = 0;
+    for (const auto& block : CoarseLayout(options.features)) {
+      for (int k = 0; k < block.second && offset + k < coarse_dim; ++k) {
+        data->coarse_scale[offset + k] *= std::sqrt(static_cast<float>(block.second));
+      }
+      offset += block.second;
+    }
+  }
+  data->coarse = ((coarse.rowwise() - data->coarse_mean.transpose()).array().rowwise() /
+                  data->coarse_scale.transpose().array())
+                     .matrix();
+  data->fine_mean = data->fine.colwise().mean().transpose();
+  data->distance_scales = ComputeDistanceScales(*data);
+  data->fine_hash_scale = 0.0f;
+  if (options.hash_fine_weight > 0.0) {
+    const double fine_l2 = MedianPairDistanceL2(data->fine);
+    data->fine_hash_scale =
+        fine_l2 > 1e-12 ? static_cast<float>(options.hash_fine_weight *
+                                             data->distance_scales.coarse / fine_l2)
+                        : 0.0f;
+  }
+  Eigen::MatrixXf training(n, coarse_dim + (data->fine_hash_scale > 0.0f ? fine_dim : 0));
+  for (int v = 0; v < n; ++v) {
+    training.row(v) = HashInputVector(data->coarse.row(v).transpose(),
+                                      data->fine.row(v).transpose(), data->fine_mean,
+                                      data->fine_hash_scale)
+                          .transpose();
+  }
+  data->hasher = Hasher::Train(training, options.hash, &report->hash);
+  data->codes = data->hasher.Encode(training);
+}
+
+}  // namespace
+
+DatabaseData BuildDatabase(const std::vector<ModelSource>& sources, const DatabaseOptions& options,
+                           const BuildProgress& progress, BuildSummary* summary, int threads) {
+  options.Check();
+  SOPE_CHECK(!sources.empty(), "BuildDatabase: no models");
+  const auto start = Clock::now();
+  BuildSummary local_summary;
+  BuildSummary& report = summary != nullptr ? *summary : local_summary;
+  report = BuildSummary();
+
+  DescribedViews described = RenderAndDescribe(sources, options, progress, threads, &report);
+  DatabaseData data;
+  data.options = options;
+  const std::vector<int> kept = AssembleViews(described, &data, &report);
   SOPE_CHECK(!data.views.empty(), "no database view could be built ({} of {} models skipped)",
              report.skipped.size(), sources.size());
 
   const int n = static_cast<int>(data.views.size());
+  std::vector<ViewResult>& results = described.results;
   const int coarse_dim = static_cast<int>(results[kept[0]].coarse.size());
   const int fine_dim = static_cast<int>(results[kept[0]].fine.size());
   DatabaseData::RowMatrix coarse(n, coarse_dim);
@@ -493,52 +567,37 @@ DatabaseData BuildDatabase(const std::vector<ModelSource>& sources, const Databa
   }
   results.clear();
 
-  // Standardise: per-dimension mean and standard deviation (a constant dimension keeps
-  // scale 1), optionally × √(block length) so every block weighs the same.
   const auto hash_start = Clock::now();
-  data.coarse_mean = coarse.colwise().mean().transpose();
-  data.coarse_scale.resize(coarse_dim);
-  for (int d = 0; d < coarse_dim; ++d) {
-    const double variance =
-        (coarse.col(d).array() - data.coarse_mean[d]).square().sum() / std::max(1, n);
-    const double sigma = std::sqrt(variance);
-    data.coarse_scale[d] = sigma > 1e-9 ? static_cast<float>(sigma) : 1.0f;
-  }
-  if (options.equal_block_weights) {
-    int offset = 0;
-    for (const auto& block : CoarseLayout(options.features)) {
-      for (int k = 0; k < block.second && offset + k < coarse_dim; ++k) {
-        data.coarse_scale[offset + k] *= std::sqrt(static_cast<float>(block.second));
-      }
-      offset += block.second;
-    }
-  }
-  data.coarse = ((coarse.rowwise() - data.coarse_mean.transpose()).array().rowwise() /
-                 data.coarse_scale.transpose().array())
-                    .matrix();
-  data.fine_mean = data.fine.colwise().mean().transpose();
-  data.distance_scales = ComputeDistanceScales(data);
-  data.fine_hash_scale = 0.0f;
-  if (options.hash_fine_weight > 0.0) {
-    const double fine_l2 = MedianPairDistanceL2(data.fine);
-    data.fine_hash_scale = fine_l2 > 1e-12 ? static_cast<float>(options.hash_fine_weight *
-                                                                data.distance_scales.coarse / fine_l2)
-                                           : 0.0f;
-  }
-  Eigen::MatrixXf training(n, coarse_dim + (data.fine_hash_scale > 0.0f ? fine_dim : 0));
-  for (int v = 0; v < n; ++v) {
-    training.row(v) = HashInputVector(data.coarse.row(v).transpose(), data.fine.row(v).transpose(),
-                                      data.fine_mean, data.fine_hash_scale)
-                          .transpose();
-  }
-  data.hasher = Hasher::Train(training, options.hash, &report.hash);
-  data.codes = data.hasher.Encode(training);
+  StandardiseAndHash(coarse, options, &data, &report);
   report.hash_seconds = SecondsSince(hash_start);
   report.models = static_cast<int>(data.models.size());
   report.views = n;
   report.total_seconds = SecondsSince(start);
   data.Check();
   return data;
+}
+
+DatabaseOptions ResolveDatabaseOptions(const DatabasePresetChoices& choices) {
+  DatabaseOptions options = DatabaseOptions::Preset(choices.preset);
+  if (choices.layout) options.layout = *choices.layout;
+  if (choices.views) {
+    SOPE_CHECK(*choices.views >= 1, "views per model must be ≥ 1, got {}", *choices.views);
+    options.views_per_model = *choices.views;
+    if (!choices.layout) {
+      options.layout = *choices.views == 18 && options.layout == ViewpointLayout::kThesis18
+                           ? ViewpointLayout::kThesis18
+                           : ViewpointLayout::kFibonacci;
+    }
+  } else if (options.layout == ViewpointLayout::kThesis18) {
+    options.views_per_model = 18;
+  }
+  SOPE_CHECK(options.layout != ViewpointLayout::kThesis18 || options.views_per_model == 18,
+             "the thesis layout has 18 viewpoints, {} views per model given",
+             options.views_per_model);
+  if (choices.hash) options.hash.method = *choices.hash;
+  if (choices.bits) options.hash.bits = *choices.bits;
+  options.Check();
+  return options;
 }
 
 }  // namespace sope

@@ -10,6 +10,7 @@
 #pragma once
 
 #include <functional>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -45,6 +46,21 @@ struct BuildSummary {
   HashTrainingSummary hash;
   std::string BriefReport() const;
 };
+
+// What may be chosen on top of a preset (`sope build-db`); unset fields keep the preset's.
+struct DatabasePresetChoices {
+  std::string preset = "sope";  // DatabaseOptions::Preset
+  std::optional<int> views;
+  std::optional<ViewpointLayout> layout;
+  std::optional<HashMethod> hash;
+  std::optional<int> bits;
+};
+// The preset with the choices applied. Unless chosen, the layout follows the views: the
+// thesis's 18-view rings for 18 views under a preset with that layout, else Fibonacci; the
+// thesis layout without a view count gets its 18. Throws sope::Error naming the value: an
+// unknown preset, fewer than one view, the thesis layout with other than 18 views, or
+// options DatabaseOptions::Check refuses.
+DatabaseOptions ResolveDatabaseOptions(const DatabasePresetChoices& choices);
 
 // Called from the building thread after each view: (views done, views in total).
 using BuildProgress = std::function<void(int done, int total)>;

@@ -192,5 +192,46 @@ TEST_F(BuildDatabaseTest, NoReadableMeshIsAnError) {
                             "views per model", "got 0");
 }
 
+TEST(ResolveDatabaseOptions, ChoicesOnTopOfAPreset) {
+  DatabasePresetChoices choices;
+  DatabaseOptions options = ResolveDatabaseOptions(choices);  // the sope preset as is
+  EXPECT_EQ(options.views_per_model, DatabaseOptions::Preset("sope").views_per_model);
+  EXPECT_EQ(options.layout, DatabaseOptions::Preset("sope").layout);
+  // The thesis preset: its 18 views on the thesis rings; other view counts are Fibonacci.
+  choices.preset = "thesis";
+  options = ResolveDatabaseOptions(choices);
+  EXPECT_EQ(options.layout, ViewpointLayout::kThesis18);
+  EXPECT_EQ(options.views_per_model, 18);
+  choices.views = 18;
+  EXPECT_EQ(ResolveDatabaseOptions(choices).layout, ViewpointLayout::kThesis18);
+  choices.views = 40;
+  options = ResolveDatabaseOptions(choices);
+  EXPECT_EQ(options.layout, ViewpointLayout::kFibonacci);
+  EXPECT_EQ(options.views_per_model, 40);
+  // The thesis layout chosen under the sope preset gets 18 views; with 20 it is refused.
+  choices = DatabasePresetChoices();
+  choices.layout = ViewpointLayout::kThesis18;
+  EXPECT_EQ(ResolveDatabaseOptions(choices).views_per_model, 18);
+  choices.views = 20;
+  try {
+    ResolveDatabaseOptions(choices);
+    ADD_FAILURE() << "thesis layout with 20 views accepted";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("18"), std::string::npos) << e.what();
+  }
+  // Codes.
+  choices = DatabasePresetChoices();
+  choices.hash = HashMethod::kLsh;
+  choices.bits = 128;
+  options = ResolveDatabaseOptions(choices);
+  EXPECT_EQ(options.hash.method, HashMethod::kLsh);
+  EXPECT_EQ(options.hash.bits, 128);
+  choices.preset = "fast";
+  EXPECT_THROW(ResolveDatabaseOptions(choices), Error);
+  choices = DatabasePresetChoices();
+  choices.views = 0;
+  EXPECT_THROW(ResolveDatabaseOptions(choices), Error);
+}
+
 }  // namespace
 }  // namespace sope

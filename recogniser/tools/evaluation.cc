@@ -14,6 +14,7 @@
 #include "core/camera_model.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/json.h"
 #include "core/plots.h"
 #include "core/statistics.h"
 #include "recogniser/tools/database_builder.h"
@@ -42,16 +43,14 @@ EvalModel MakeEvalModel(TriangleMesh mesh, const std::string& name, const std::s
   model.path = path;
   model.db_model = db_model;
   if (scale != 1.0) mesh.Transform(scale, Eigen::Vector3d::Zero());
-  Eigen::Vector3f lo, hi;
-  mesh.Bounds(&lo, &hi);
-  model.center = (0.5 * (lo + hi)).cast<double>();
+  PoseTruthModelOptions truth_options;
+  truth_options.samples = kAddsSamples;
+  truth_options.seed = 5;
+  model.truth = MakePoseTruthModel(mesh, truth_options);
   for (const Eigen::Vector3f& v : mesh.vertices) {
     model.bounding_radius =
-        std::max(model.bounding_radius, (v.cast<double>() - model.center).norm());
+        std::max(model.bounding_radius, (v.cast<double>() - model.truth.center).norm());
   }
-  model.diameter = mesh.BoundingDiagonal();
-  model.samples = SampleSurface(mesh, kAddsSamples, 5);
-  model.symmetry = DetectSymmetry(mesh);
   model.mesh = std::move(mesh);
   return model;
 }
@@ -93,11 +92,6 @@ double Fraction(const std::vector<QueryOutcome>& outcomes, Predicate predicate) 
   return static_cast<double>(count) / static_cast<double>(outcomes.size());
 }
 
-// NaN as JSON null.
-nlohmann::json Number(double value) {
-  return std::isfinite(value) ? nlohmann::json(value) : nlohmann::json(nullptr);
-}
-
 std::string Percent(double fraction) { return fmt::format("{:.1f}%", 100.0 * fraction); }
 std::string Fixed(double value, int digits) {
   return std::isfinite(value) ? fmt::format("{:.{}f}", value, digits) : std::string("–");
@@ -106,6 +100,58 @@ std::string Fixed(double value, int digits) {
 // Horizontal field of view of a pinhole, radians.
 double HorizontalFov(const CameraModel& camera) {
   return 2.0 * std::atan(0.5 * camera.width / camera.matrix(0, 0));
+}
+
+// Fills the outcome of one recognised query: the suggestions' ranks against the truth,
+// the viewpoint error, and (instance protocol, right model) the pose error.
+void ScoreOutcome(const Database& db, const EvalModel& model, const SyntheticQuery& query,
+                  const EvalOptions& options, const RecognitionResult& result,
+                  QueryOutcome* out) {
+  QueryOutcome& outcome = *out;
+  const Suggestion& best = result.best();
+  outcome.predicted_model = best.model_name;
+  outcome.predicted_class = best.class_name;
+  outcome.refined = best.refined;
+  outcome.score = best.score;
+  outcome.flagged_fraction = result.flagged_fraction;
+  outcome.timing = result.timing;
+  for (size_t s = 0; s < result.suggestions.size(); ++s) {
+    const Suggestion& suggestion = result.suggestions[s];
+    const bool same_model = model.db_model >= 0 && suggestion.model == model.db_model;
+    const bool same_class = suggestion.class_name == model.class_name;
+    if (s == 0) {
+      outcome.model_top1 = same_model;
+      outcome.class_top1 = same_class;
+    }
+    outcome.model_topk |= same_model;
+    outcome.class_topk |= same_class;
+    const bool truth = options.protocol == EvalProtocol::kInstance ? same_model : same_class;
+    if (truth && outcome.truth_rank < 0) {
+      outcome.truth_rank = static_cast<int>(s);
+      outcome.truth_score = suggestion.score;
+    }
+  }
+  // Viewpoint: where the estimated pose puts the camera, seen from the suggested
+  // model's centre, against the truth (modulo the query model's symmetries).
+  const bool comparable = options.protocol == EvalProtocol::kInstance ? outcome.model_top1
+                                                                      : outcome.class_top1;
+  if (comparable) {
+    const Eigen::Vector3d estimate =
+        ViewpointFromPose(best.cam_from_model, db.model(best.model).center).Direction();
+    outcome.viewpoint_error_deg =
+        SymmetricViewpointErrorDeg(estimate, query.viewpoint.Direction(), model.truth.symmetry);
+  }
+  if (options.protocol == EvalProtocol::kInstance) {
+    if (outcome.model_top1) {
+      const PoseComparison error =
+          ComparePoses(best.cam_from_model, query.cam_from_model, model.truth);
+      outcome.rotation_error_deg = error.rotation_error_deg;
+      outcome.translation_error_m = error.center_error_m;
+      outcome.adds_m = error.adds_m;
+      outcome.adds_over_diameter = error.adds_over_diameter();
+      outcome.adds_ok = outcome.adds_over_diameter < options.adds_fraction;
+    }
+  }
 }
 
 }  // namespace
@@ -228,7 +274,7 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
     for (int k = 0; k < options.queries_per_model; ++k) {
       SyntheticQuery query;
       for (int attempt = 0; attempt < kMaxQueryAttempts; ++attempt) {
-        query = RenderSyntheticQuery(&renderer, camera, model.center, model.bounding_radius,
+        query = RenderSyntheticQuery(&renderer, camera, model.truth.center, model.bounding_radius,
                                      query_options, &rng);
         if (static_cast<int>(query.cloud.size()) >= kMinQueryPoints) break;
       }
@@ -247,7 +293,8 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
         if (options.through_scan) {
           // The object before a backdrop beyond its farthest point; the band keeps the
           // object only.
-          const double far = (query.cam_from_model * model.center).norm() + model.bounding_radius;
+          const double far =
+              (query.cam_from_model * model.truth.center).norm() + model.bounding_radius;
           const double backdrop = far + 0.15;
           Scene scene;
           scene.objects.push_back({model.mesh, query.cam_from_model, 0.8, {}});
@@ -259,8 +306,12 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
           const ScanRecognition scanned = RecogniseFrameSet(
               scan.frames, *triangulator, scan_options.decoder, band, recogniser,
               options.recognition);
-          result = scanned.recognition;
           outcome.cloud_points = static_cast<int>(scanned.object.size());
+          // Nothing triangulated or nothing in the band: refused, as the recogniser would.
+          SOPE_CHECK(scanned.status == ScanStatus::kRecognised ||
+                         scanned.status == ScanStatus::kNoSuggestion,
+                     "{}", scanned.message);
+          result = scanned.recognition;
         } else {
           result = recogniser.Recognise(query.cloud, options.recognition);
         }
@@ -271,52 +322,7 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
         if (progress) progress(++done, total);
         continue;
       }
-      const Suggestion& best = result.best();
-      outcome.predicted_model = best.model_name;
-      outcome.predicted_class = best.class_name;
-      outcome.refined = best.refined;
-      outcome.score = best.score;
-      outcome.flagged_fraction = result.flagged_fraction;
-      outcome.timing = result.timing;
-      for (size_t s = 0; s < result.suggestions.size(); ++s) {
-        const Suggestion& suggestion = result.suggestions[s];
-        const bool same_model = model.db_model >= 0 && suggestion.model == model.db_model;
-        const bool same_class = suggestion.class_name == model.class_name;
-        if (s == 0) {
-          outcome.model_top1 = same_model;
-          outcome.class_top1 = same_class;
-        }
-        outcome.model_topk |= same_model;
-        outcome.class_topk |= same_class;
-        const bool truth = options.protocol == EvalProtocol::kInstance ? same_model : same_class;
-        if (truth && outcome.truth_rank < 0) {
-          outcome.truth_rank = static_cast<int>(s);
-          outcome.truth_score = suggestion.score;
-        }
-      }
-      // Viewpoint: where the estimated pose puts the camera, seen from the suggested
-      // model's centre, against the truth (modulo the query model's symmetries).
-      const bool comparable = options.protocol == EvalProtocol::kInstance ? outcome.model_top1
-                                                                          : outcome.class_top1;
-      if (comparable) {
-        const Eigen::Vector3d estimate =
-            ViewpointFromPose(best.cam_from_model, db.model(best.model).center).Direction();
-        outcome.viewpoint_error_deg =
-            SymmetricViewpointErrorDeg(estimate, query.viewpoint.Direction(), model.symmetry);
-      }
-      if (options.protocol == EvalProtocol::kInstance) {
-        if (outcome.model_top1) {
-          outcome.rotation_error_deg = SymmetricRotationErrorDeg(
-              best.cam_from_model.rotation, query.cam_from_model.rotation, model.symmetry);
-          outcome.translation_error_m = (best.cam_from_model * model.center -
-                                         query.cam_from_model * model.center)
-                                            .norm();
-          outcome.adds_m =
-              AverageDistanceSymmetric(model.samples, best.cam_from_model, query.cam_from_model);
-          outcome.adds_over_diameter = outcome.adds_m / model.diameter;
-          outcome.adds_ok = outcome.adds_over_diameter < options.adds_fraction;
-        }
-      }
+      ScoreOutcome(db, model, query, options, result, &outcome);
       report.outcomes.push_back(std::move(outcome));
       if (progress) progress(++done, total);
     }
@@ -562,20 +568,20 @@ std::string EvalReport::ToJson() const {
   j["model_topk"] = ModelTopK();
   j["class_top1"] = ClassTop1();
   j["class_topk"] = ClassTopK();
-  j["median_viewpoint_error_deg"] = Number(MedianViewpointErrorDeg());
-  j["median_rotation_error_deg"] = Number(MedianRotationErrorDeg());
-  j["median_translation_error_mm"] = Number(MedianTranslationErrorMm());
-  j["median_adds_over_diameter"] = Number(MedianAddsOverDiameter());
+  j["median_viewpoint_error_deg"] = JsonNumber(MedianViewpointErrorDeg());
+  j["median_rotation_error_deg"] = JsonNumber(MedianRotationErrorDeg());
+  j["median_translation_error_mm"] = JsonNumber(MedianTranslationErrorMm());
+  j["median_adds_over_diameter"] = JsonNumber(MedianAddsOverDiameter());
   j["adds_threshold"] = options.adds_fraction;
   j["adds_success"] = AddsSuccess();
   j["rotation_threshold_deg"] = options.rotation_threshold_deg;
   j["rotation_success"] = RotationSuccess();
-  j["flagged_fraction_mean"] = Number(MeanFlaggedFraction());
+  j["flagged_fraction_mean"] = JsonNumber(MeanFlaggedFraction());
   j["flagged_fraction_max"] = MaxFlaggedFraction();
   j["timing_ms_median_cpu"] = {{"preprocess", t.preprocess_cpu}, {"features", t.features_cpu},
                                {"coarse", t.coarse_cpu},         {"fine", t.fine_cpu},
                                {"pose", t.pose_cpu},             {"total", t.total_cpu}};
-  j["timing_ms_p95_total_cpu"] = Number(P95TotalMs());
+  j["timing_ms_p95_total_cpu"] = JsonNumber(P95TotalMs());
   j["skipped_models"] = skipped_models;
   nlohmann::json list = nlohmann::json::array();
   for (const QueryOutcome& o : outcomes) {
@@ -598,10 +604,10 @@ std::string EvalReport::ToJson() const {
     q["score"] = o.score;
     q["truth_rank"] = o.truth_rank;
     q["truth_score"] = o.truth_score;
-    q["viewpoint_error_deg"] = Number(o.viewpoint_error_deg);
-    q["rotation_error_deg"] = Number(o.rotation_error_deg);
-    q["translation_error_m"] = Number(o.translation_error_m);
-    q["adds_over_diameter"] = Number(o.adds_over_diameter);
+    q["viewpoint_error_deg"] = JsonNumber(o.viewpoint_error_deg);
+    q["rotation_error_deg"] = JsonNumber(o.rotation_error_deg);
+    q["translation_error_m"] = JsonNumber(o.translation_error_m);
+    q["adds_over_diameter"] = JsonNumber(o.adds_over_diameter);
     q["flagged_fraction"] = o.flagged_fraction;
     q["total_ms_cpu"] = o.timing.total_cpu;
     list.push_back(std::move(q));

@@ -41,11 +41,9 @@ struct EvalModel {
   std::string path;
   int db_model = -1;  // index in the database (instance protocol), else −1
   TriangleMesh mesh;
-  Eigen::Vector3d center = Eigen::Vector3d::Zero();  // bounding-box centre
-  double bounding_radius = 0.0;
-  double diameter = 0.0;  // bounding-box diagonal, metres
-  std::vector<Eigen::Vector3f> samples;  // surface sample for ADD-S
-  ModelSymmetry symmetry;
+  double bounding_radius = 0.0;  // about truth.center
+  // Bounding-box centre, diameter, ADD-S samples, symmetry (recogniser/pose_metrics.h).
+  PoseTruthModel truth;
 };
 
 // The database's models, read from their source meshes (which must still exist).

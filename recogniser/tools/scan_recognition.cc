@@ -134,22 +134,46 @@ ScanRecognition RecogniseFrameSet(const FrameSet& frames, const Triangulator& tr
   out.timing.decode = out.scan.decode_ms;
   out.timing.triangulate = out.scan.triangulate_ms;
   const PointCloud& cloud = out.scan.triangulation.cloud;
-  SOPE_CHECK(!cloud.empty(), "no points: {} pixels decoded, none triangulated (no projector "
-             "light on the scene, or a wrong calibration?)",
-             out.scan.correspondences.CountValid());
+  if (cloud.empty()) {
+    out.status = ScanStatus::kNoPoints;
+    out.message = fmt::format("no points: {} pixels decoded, none triangulated (no projector "
+                              "light on the scene, or a wrong calibration?)",
+                              out.scan.correspondences.CountValid());
+    out.timing.total = NowMs() - start;
+    return out;
+  }
   const double segment_start = NowMs();
   out.object = SegmentByRange(cloud, segmentation);
   out.timing.segment = NowMs() - segment_start;
-  SOPE_CHECK(out.object.size() >= 50,
-             "segmentation left {} of {} points in the range band [{}, {}] m (nothing in front "
-             "of the rig? set --min-range/--max-range)",
-             out.object.size(), cloud.size(), segmentation.min_range, segmentation.max_range);
+  if (out.object.size() < kMinObjectPoints) {
+    out.status = ScanStatus::kNothingInBand;
+    out.message = fmt::format("segmentation left {} of {} points in the range band [{}, {}] m "
+                              "(nothing in front of the rig?)",
+                              out.object.size(), cloud.size(), segmentation.min_range,
+                              segmentation.max_range);
+    out.timing.total = NowMs() - start;
+    return out;
+  }
   const double recognise_start = NowMs();
   out.recognition = recogniser.Recognise(out.object, recognition_options);
   const double end = NowMs();
   out.timing.recognise = end - recognise_start;
   out.timing.total = end - start;
+  if (out.recognition.empty()) {
+    out.status = ScanStatus::kNoSuggestion;
+    out.message = "no suggestion (the database has no comparable view)";
+  }
   return out;
+}
+
+std::string ToString(ScanStatus status) {
+  switch (status) {
+    case ScanStatus::kRecognised: return "recognised";
+    case ScanStatus::kNoSuggestion: return "no suggestion";
+    case ScanStatus::kNoPoints: return "no points";
+    case ScanStatus::kNothingInBand: return "nothing in band";
+  }
+  return "unknown";
 }
 
 void RecognitionSceneOptions::Check() const {

@@ -51,18 +51,33 @@ struct ScanRecognitionTimings {
   double total = 0.0;      // the four together (measured around them)
 };
 
+// How a scan ended. A scan with nothing to recognise is a result, not an error: the object
+// may have been lifted away between two scans of a continuous run.
+enum class ScanStatus {
+  kRecognised,     // the recogniser gave at least one suggestion
+  kNoSuggestion,   // the recogniser ran and found no comparable view
+  kNoPoints,       // nothing triangulated (no projector light, or a wrong calibration)
+  kNothingInBand,  // fewer than kMinObjectPoints points in the range band
+};
+// "recognised", "no suggestion", "no points", "nothing in band".
+std::string ToString(ScanStatus status);
+// The object cloud needs this many points to be worth recognising.
+constexpr size_t kMinObjectPoints = 50;
+
 struct ScanRecognition {
+  ScanStatus status = ScanStatus::kRecognised;
+  std::string message;     // what happened, when the status is not kRecognised
   ScanResult scan;         // correspondences and the full cloud
   PointCloud object;       // the segmented cloud given to the recogniser
-  RecognitionResult recognition;
+  RecognitionResult recognition;  // empty unless the recogniser ran
   ScanRecognitionTimings timing;
 };
 
 // Decode + triangulate `frames` with `triangulator` (built once per calibration: it holds
 // the undistortion tables, ~0.2 s for a 1280×720 camera, not part of a scan's latency),
-// segment, recognise. Throws
-// sope::Error when nothing is triangulated, nothing is left in the band (the message says
-// how many points and the band), or the recogniser refuses the cloud.
+// segment, recognise. When nothing is triangulated or nothing is left in the band the
+// recogniser is not run and the status says so (the message gives the point counts and the
+// band). Throws sope::Error on invalid options or when the recogniser refuses the cloud.
 ScanRecognition RecogniseFrameSet(const FrameSet& frames, const Triangulator& triangulator,
                                   const DecoderOptions& decoder_options,
                                   const ObjectSegmentationOptions& segmentation,

@@ -1,0 +1,262 @@
+// The pipeline layer on the virtual rig: the scan-and-recognise controller over virtual
+// scenes (ground truth), recorded frame sets and the live rig; a scan with nothing in the
+// range band is a status, not an error; results.jsonl is appended, and on a full disk no
+// scan leaves files without its results line.
+#include "pipeline/scan_and_recognise.h"
+
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <cstring>
+#include <sstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "core/error.h"
+#include "core/file_util.h"
+#include "pipeline/scan_source.h"
+#include "recogniser/tools/database_builder.h"
+#include "simulator/procedural_objects.h"
+#include "simulator/virtual_rig.h"
+#include "tests/test_support.h"
+
+namespace sope {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Three classes, one instance (seed 0) each, 40 views: a database for the loop, not for
+// accuracy (scan_and_recognise_test measures that).
+const std::vector<ObjectClass> kClasses = {ObjectClass::kMug, ObjectClass::kBottle,
+                                           ObjectClass::kBowl};
+
+template <typename F>
+void ExpectErrorNaming(F&& f, const std::string& needle) {
+  try {
+    f();
+    ADD_FAILURE() << "no error; expected one naming '" << needle << "'";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+  }
+}
+
+class Pipeline : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    scratch_ = new testing::ScratchDir();
+    const std::string models = scratch_->File("models");
+    WriteProceduralModels(models, 1, 0);
+    for (ObjectClass cls : AllObjectClasses()) {
+      if (std::find(kClasses.begin(), kClasses.end(), cls) == kClasses.end()) {
+        fs::remove_all(models + "/" + ToString(cls));
+      }
+    }
+    DatabaseOptions options = DatabaseOptions::Preset("sope");
+    options.views_per_model = 40;
+    WriteDatabase(scratch_->File("db.sopedb"), BuildDatabase(models, options));
+    db_ = Database::Open(scratch_->File("db.sopedb")).release();
+  }
+  static void TearDownTestSuite() {
+    delete db_;
+    delete scratch_;
+  }
+  // Scenes of the database's own instances (the true model frame is the database's).
+  static VirtualSceneSourceOptions SceneSource(uint64_t seed) {
+    VirtualSceneSourceOptions options;
+    options.calibration = DefaultRigCalibration();
+    options.scenes.classes = kClasses;
+    options.scenes.instance_seed_base = 0;
+    options.scenes.instance_count = 1;
+    options.seed = seed;
+    options.patterns.projector_width = options.calibration.projector.width;
+    options.patterns.projector_height = options.calibration.projector.height;
+    return options;
+  }
+  static testing::ScratchDir* scratch_;
+  static Database* db_;
+};
+testing::ScratchDir* Pipeline::scratch_ = nullptr;
+Database* Pipeline::db_ = nullptr;
+
+TEST_F(Pipeline, ControllerScansVirtualScenesAndComparesWithTheTruth) {
+  VirtualSceneSource source(SceneSource(5));
+  ScanAndRecogniseOptions options;
+  options.max_scans = 3;
+  ScanAndRecogniseController controller(options, &source, *db_);
+  std::vector<ScanReport> reports;
+  const int done = controller.Run([&](const ScanReport& r) { reports.push_back(r); });
+  ASSERT_EQ(done, 3);
+  ASSERT_EQ(reports.size(), 3u);
+  int correct = 0;
+  for (int i = 0; i < 3; ++i) {
+    const ScanReport& r = reports[i];
+    EXPECT_EQ(r.index, i);
+    EXPECT_EQ(r.status, ScanStatus::kRecognised) << r.message;
+    ASSERT_TRUE(r.truth.has_value());
+    // The scene's own band: every kept point nearer than the backdrop.
+    EXPECT_GT(r.result.object.size(), 1000u);
+    EXPECT_LT(r.result.object.size(), r.result.scan.triangulation.cloud.size());
+    const nlohmann::json j = nlohmann::json::parse(r.json);
+    EXPECT_EQ(j.at("status"), "recognised");
+    EXPECT_EQ(j.at("scan").at("index"), i);
+    EXPECT_EQ(j.at("ground_truth").at("class"), r.truth->class_name);
+    EXPECT_EQ(j.at("ground_truth").at("class_correct").get<bool>(), r.class_correct);
+    EXPECT_FALSE(j.contains("files"));  // no out_dir
+    if (!r.class_correct) continue;
+    ++correct;
+    ASSERT_TRUE(r.pose_error.has_value());
+    // The one comparison: the JSON carries exactly ComparePoses' numbers.
+    const PoseComparison again = ComparePoses(r.result.recognition.best().cam_from_model,
+                                              r.truth->cam_from_model, r.truth->mesh);
+    EXPECT_EQ(j.at("ground_truth").at("adds_m").get<double>(), again.adds_m);
+    EXPECT_EQ(j.at("ground_truth").at("rotation_error_deg").get<double>(),
+              again.rotation_error_deg);
+    // A right class on a database instance: ADD-S within 10% of the diameter.
+    EXPECT_LT(r.pose_error->adds_over_diameter(), 0.10) << r.truth->class_name;
+  }
+  EXPECT_GE(correct, 2);
+}
+
+TEST_F(Pipeline, NothingInTheBandIsAStatusAndTheRunGoesOn) {
+  VirtualSceneSource source(SceneSource(1));
+  ScanAndRecogniseOptions options;
+  options.max_scans = 2;
+  options.max_range = 0.2;  // the objects are ≥ 0.4 m away
+  ScanAndRecogniseController controller(options, &source, *db_);
+  std::vector<ScanReport> reports;
+  EXPECT_EQ(controller.Run([&](const ScanReport& r) { reports.push_back(r); }), 2);
+  ASSERT_EQ(reports.size(), 2u);
+  for (const ScanReport& r : reports) {
+    EXPECT_EQ(r.status, ScanStatus::kNothingInBand);
+    EXPECT_NE(r.message.find("segmentation left 0 of"), std::string::npos) << r.message;
+    EXPECT_EQ(r.message.find("--"), std::string::npos) << "names a flag: " << r.message;
+    EXPECT_TRUE(r.result.recognition.empty());
+    const nlohmann::json j = nlohmann::json::parse(r.json);
+    EXPECT_EQ(j.at("status"), "nothing in band");
+    EXPECT_TRUE(j.at("objects").is_array());
+    EXPECT_TRUE(j.at("objects").empty());
+    EXPECT_FALSE(j.contains("class"));
+    EXPECT_FALSE(j.at("ground_truth").at("class_correct").get<bool>());
+  }
+  // For a single scan, seeing nothing is a failure when asked.
+  options.max_scans = 1;
+  options.fail_on_nothing_found = true;
+  ScanAndRecogniseController strict(options, &source, *db_);
+  ExpectErrorNaming([&] { strict.Run(); }, "segmentation left 0 of");
+}
+
+TEST_F(Pipeline, ResultsAreAppendedAndEveryLineHasItsFiles) {
+  testing::ScratchDir scratch;
+  const std::string out = scratch.File("out");
+  fs::create_directories(out);
+  WriteFileAtomic(out + "/results.jsonl", "{\"earlier\": true}\n");
+  VirtualSceneSource source(SceneSource(2));
+  ScanAndRecogniseOptions options;
+  options.max_scans = 2;
+  options.out_dir = out;
+  ScanAndRecogniseController controller(options, &source, *db_);
+  std::vector<std::string> lines_seen;
+  controller.Run([&](const ScanReport& r) { lines_seen.push_back(r.json); });
+  std::istringstream lines(ReadFileToString(out + "/results.jsonl", "results"));
+  std::string line;
+  std::getline(lines, line);
+  EXPECT_EQ(line, "{\"earlier\": true}");  // appended, not rewritten
+  for (int i = 0; i < 2; ++i) {
+    ASSERT_TRUE(std::getline(lines, line));
+    EXPECT_EQ(line, lines_seen[i]);
+    const nlohmann::json files = nlohmann::json::parse(line).at("files");
+    for (const char* key : {"cloud", "object_cloud", "overlay"}) {
+      EXPECT_TRUE(fs::is_regular_file(files.at(key).get<std::string>())) << key;
+    }
+  }
+  EXPECT_FALSE(std::getline(lines, line));
+}
+
+TEST_F(Pipeline, AFullDiskLeavesNoCloudsWithoutTheirResultsLine) {
+  // results.jsonl on a device that is always full (ENOSPC on every write): the scan's
+  // clouds and overlay are written, the line is not, so they are removed again.
+  testing::ScratchDir scratch;
+  const std::string out = scratch.File("out");
+  fs::create_directories(out);
+  fs::create_symlink("/dev/full", out + "/results.jsonl");
+  VirtualSceneSource source(SceneSource(3));
+  ScanAndRecogniseOptions options;
+  options.max_scans = 1;
+  options.out_dir = out;
+  ScanAndRecogniseController controller(options, &source, *db_);
+  int reported = 0;
+  ExpectErrorNaming([&] { controller.Run([&](const ScanReport&) { ++reported; }); },
+                    "results.jsonl: " + std::string(std::strerror(ENOSPC)));
+  EXPECT_EQ(reported, 0);
+  for (const auto& entry : fs::directory_iterator(out)) {
+    EXPECT_EQ(entry.path().filename().string(), "results.jsonl") << "left behind: "
+                                                              << entry.path().string();
+  }
+}
+
+TEST(AppendLine, CutsBackAFailedWrite) {
+  testing::ScratchDir scratch;
+  const std::string path = scratch.File("sub/results.jsonl");
+  AppendLine(path, "one");
+  AppendLine(path, "two");
+  EXPECT_EQ(ReadFileToString(path, "results"), "one\ntwo\n");
+  ExpectErrorNaming([] { AppendLine("/dev/full", "x"); }, "/dev/full");
+  ExpectErrorNaming([&] { AppendLine(scratch.File("sub"), "x"); }, "sub");  // a directory
+}
+
+TEST_F(Pipeline, RecordedFrameSetsReplayThroughTheController) {
+  // Record the built-in mug scene with the live-rig source, then scan it twice from disk.
+  testing::ScratchDir scratch;
+  LiveRigSourceOptions live;
+  live.spec = "virtual";
+  live.calibration = DefaultRigCalibration();
+  live.patterns.projector_width = live.calibration.projector.width;
+  live.patterns.projector_height = live.calibration.projector.height;
+  live.record_directory = scratch.File("rec");
+  {
+    LiveRigSource source(live);
+    EXPECT_EQ(source.size(), 1);
+    const SourceScan scan = source.Next(0);
+    ASSERT_TRUE(scan.truth.has_value());
+    EXPECT_EQ(scan.truth->class_name, "mug");
+    EXPECT_TRUE(fs::exists(scratch.File("rec/frames.json")));
+  }
+  FrameSetDirectorySource frames({scratch.File("rec"), scratch.File("rec")}, "");
+  ScanAndRecogniseOptions options;
+  options.max_scans = -1;  // as many as the source holds
+  options.max_range = 0.72;  // the mug at 0.6 m, the backdrop at 0.75 m
+  ScanAndRecogniseController controller(options, &frames, *db_);
+  std::vector<ScanReport> reports;
+  EXPECT_EQ(controller.Run([&](const ScanReport& r) { reports.push_back(r); }), 2);
+  for (const ScanReport& r : reports) {
+    EXPECT_EQ(r.source, scratch.File("rec"));
+    ASSERT_EQ(r.status, ScanStatus::kRecognised) << r.message;
+    EXPECT_EQ(r.result.recognition.best().class_name, "mug");
+    EXPECT_FALSE(r.truth.has_value());  // a recording carries no ground truth
+  }
+  ExpectErrorNaming([&] { frames.Next(2); }, "frame set 2 of 2");
+}
+
+TEST(PipelineOptions, BadValuesAreNamed) {
+  ScanAndRecogniseOptions options;
+  options.max_scans = 0;
+  ExpectErrorNaming([&] { options.Check(); }, "number of scans");
+  options.max_scans = 1;
+  options.min_range = 0.5;
+  options.max_range = 0.4;
+  ExpectErrorNaming([&] { options.Check(); }, "near end (0.5 m)");
+  RecognitionSceneOptions scenes;
+  ExpectErrorNaming([&] { RestrictScenesToObject("teapot", &scenes); }, "teapot");
+  ExpectErrorNaming([&] { RestrictScenesToObject("mug:12x", &scenes); }, "mug:12x");
+  RestrictScenesToObject("bottle:7", &scenes);
+  ASSERT_EQ(scenes.classes.size(), 1u);
+  EXPECT_EQ(scenes.classes[0], ObjectClass::kBottle);
+  EXPECT_EQ(scenes.instance_seed_base, 7u);
+  EXPECT_EQ(scenes.instance_count, 1);
+}
+
+}  // namespace
+}  // namespace sope

@@ -1,0 +1,277 @@
+#include "pipeline/scan_and_recognise.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+#include <spdlog/spdlog.h>
+
+#include "core/error.h"
+#include "core/file_util.h"
+#include "core/json.h"
+#include "core/point_cloud.h"
+
+namespace sope {
+namespace {
+
+namespace fs = std::filesystem;
+
+// The camera's white frame (or the first frame) for the overlay.
+cv::Mat WhiteImage(const FrameSet& frames) {
+  if (!frames.white_color.empty()) return frames.white_color;
+  const std::optional<size_t> white = frames.manifest.Find(FrameRole::kWhite);
+  return frames.images.at(white ? *white : 0);
+}
+
+nlohmann::json TruthJson(const ScanReport& report) {
+  const ScanTruth& truth = *report.truth;
+  nlohmann::json j = {{"class", truth.class_name},
+                      {"instance_seed", truth.instance_seed},
+                      {"pose", Rigid3dToJson(truth.cam_from_model)},
+                      {"class_correct", report.class_correct}};
+  if (report.pose_error) {
+    const PoseComparison& error = *report.pose_error;
+    j["rotation_error_deg"] = error.rotation_error_deg;
+    j["center_error_m"] = error.center_error_m;
+    j["adds_m"] = error.adds_m;
+    j["diameter_m"] = error.diameter_m;
+  }
+  return j;
+}
+
+bool Cancelled(const std::atomic<bool>* cancel) { return cancel && cancel->load(); }
+
+// Removes what a failed scan wrote.
+void RemoveFiles(const ScanFiles& files) {
+  std::error_code ignored;
+  for (const std::string* path : {&files.cloud, &files.object_cloud, &files.overlay}) {
+    if (!path->empty()) fs::remove(*path, ignored);
+  }
+}
+
+}  // namespace
+
+void ScanAndRecogniseOptions::Check() const {
+  scan.Check();
+  recognition.Check();
+  SOPE_CHECK(!min_range || (std::isfinite(*min_range) && *min_range >= 0.0),
+             "range band: the near end must be ≥ 0 m, got {}", min_range.value_or(0.0));
+  SOPE_CHECK(!max_range || (std::isfinite(*max_range) && *max_range > 0.0),
+             "range band: the far end must be > 0 m, got {}", max_range.value_or(0.0));
+  SOPE_CHECK(!min_range || !max_range || *min_range < *max_range,
+             "range band: the near end ({} m) must be below the far end ({} m)",
+             min_range.value_or(0.0), max_range.value_or(0.0));
+  SOPE_CHECK(max_scans >= 1 || max_scans == -1,
+             "number of scans must be ≥ 1 (or −1: until the source ends), got {}", max_scans);
+}
+
+ScanAndRecogniseController::ScanAndRecogniseController(const ScanAndRecogniseOptions& options,
+                                                       ScanSource* source,
+                                                       const Database& database)
+    : options_(options), source_(source), database_(database), recogniser_(database) {
+  options_.Check();
+  SOPE_CHECK(source_ != nullptr, "scan and recognise: no scan source");
+}
+
+ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& progress) {
+  SourceScan in = source_->Next(index, progress);
+  CheckCalibrationMatchesFrames(in.calibration, in.frames.manifest, in.calibration_source);
+  ScanReport report;
+  report.index = index;
+  report.source = in.source;
+  report.capture_ms = in.capture_ms;
+  report.band = in.band.value_or(ObjectSegmentationOptions());
+  if (options_.min_range) report.band.min_range = *options_.min_range;
+  if (options_.max_range) report.band.max_range = *options_.max_range;
+  if (!triangulator_ || !source_->fixed_calibration()) {
+    triangulator_ = std::make_unique<Triangulator>(in.calibration, options_.scan.triangulation);
+  }
+  report.result = RecogniseFrameSet(in.frames, *triangulator_, options_.scan.decoder,
+                                    report.band, recogniser_, options_.recognition);
+  report.status = report.result.status;
+  report.message = report.result.message;
+  report.truth = std::move(in.truth);
+  const RecognitionResult& recognition = report.result.recognition;
+  if (report.truth && !recognition.empty()) {
+    const Suggestion& best = recognition.best();
+    report.class_correct = best.class_name == report.truth->class_name;
+    if (report.class_correct) {
+      report.pose_error =
+          ComparePoses(best.cam_from_model, report.truth->cam_from_model, report.truth->mesh);
+    }
+  }
+  report.image = WhiteImage(in.frames);
+  report.camera = in.calibration.camera;
+  report.json = ScanReportToJson(report);
+  return report;
+}
+
+int ScanAndRecogniseController::Run(const ScanCallback& callback,
+                                    const CaptureProgress& progress) {
+  int done = 0;
+  for (int index = 0; options_.max_scans < 0 || index < options_.max_scans; ++index) {
+    if (source_->size() >= 0 && index >= source_->size()) break;
+    if (Cancelled(options_.cancel)) break;
+    ScanReport report;
+    try {
+      report = Scan(index, progress);
+    } catch (const Error&) {
+      // Ctrl-C during a capture ends a multi-scan run that has results.
+      if (Cancelled(options_.cancel) && options_.max_scans != 1 && done > 0) break;
+      throw;
+    }
+    if (options_.fail_on_nothing_found && (report.status == ScanStatus::kNoPoints ||
+                                           report.status == ScanStatus::kNothingInBand)) {
+      throw Error(report.message);
+    }
+    if (!options_.out_dir.empty()) WriteScanOutputs(options_.out_dir, database_, &report);
+    if (callback) callback(report);
+    ++done;
+  }
+  if (!options_.out_dir.empty()) spdlog::info("{} scan(s) -> {}", done, options_.out_dir);
+  if (Cancelled(options_.cancel)) spdlog::info("stopped after {} scan(s) (interrupted)", done);
+  return done;
+}
+
+void WriteScanOutputs(const std::string& out_dir, const Database& database, ScanReport* report) {
+  const std::string stem = fmt::format("scan_{:04d}", report->index);
+  const PointCloud& cloud = report->result.scan.triangulation.cloud;
+  const PointCloud& object = report->result.object;
+  ScanFiles& files = report->files;
+  try {
+    if (!cloud.empty()) {
+      files.cloud = JoinPath(out_dir, stem + ".ply");
+      WritePointCloud(files.cloud, cloud);
+    }
+    if (!object.empty()) {
+      files.object_cloud = JoinPath(out_dir, stem + "_object.ply");
+      WritePointCloud(files.object_cloud, object);
+    }
+    files.overlay = JoinPath(out_dir, stem + "_overlay.png");
+    WriteImageAtomic(files.overlay, DrawScanOverlay(*report, database));
+    report->json = ScanReportToJson(*report);
+    AppendLine(JoinPath(out_dir, "results.jsonl"), report->json);
+  } catch (const Error&) {
+    RemoveFiles(files);  // no files without their results line
+    throw;
+  }
+}
+
+std::string ScanReportToJson(const ScanReport& report) {
+  const ScanRecognition& result = report.result;
+  nlohmann::json j = nlohmann::json::parse(RecognitionResultToJson(result.recognition));
+  j["status"] = ToString(report.status);
+  nlohmann::json& timing = j["timing_ms"];
+  timing["capture"] = report.capture_ms;
+  timing["decode"] = result.timing.decode;
+  timing["triangulate"] = result.timing.triangulate;
+  timing["segment"] = result.timing.segment;
+  timing["recognise"] = result.timing.recognise;
+  timing["frame_to_result"] = result.timing.total;
+  j["scan"] = {{"index", report.index},
+               {"source", report.source},
+               {"points", result.scan.triangulation.cloud.size()},
+               {"object_points", result.object.size()},
+               {"range_band_m", {report.band.min_range, report.band.max_range}}};
+  if (report.status != ScanStatus::kRecognised) {
+    j["message"] = report.message;
+    j["objects"] = nlohmann::json::array();  // DESIGN.md: nothing recognised
+  }
+  if (report.truth) j["ground_truth"] = TruthJson(report);
+  const ScanFiles& files = report.files;
+  if (!files.overlay.empty()) {
+    nlohmann::json f = {{"overlay", files.overlay}};
+    if (!files.cloud.empty()) f["cloud"] = files.cloud;
+    if (!files.object_cloud.empty()) f["object_cloud"] = files.object_cloud;
+    j["files"] = f;
+  }
+  return j.dump();
+}
+
+std::string ScanReportToText(const ScanReport& report) {
+  const ScanRecognition& result = report.result;
+  std::string text;
+  if (report.status == ScanStatus::kRecognised) {
+    const Suggestion& best = result.recognition.best();
+    text = fmt::format("scan {}: {} ({}), score {:.2f}, {} object points; frame to result "
+                       "{:.0f} ms (decode {:.0f}, triangulate {:.0f}, segment {:.0f}, recognise "
+                       "{:.0f})",
+                       report.index, best.class_name, best.model_name, best.score,
+                       result.object.size(), result.timing.total, result.timing.decode,
+                       result.timing.triangulate, result.timing.segment, result.timing.recognise);
+  } else if (report.status == ScanStatus::kNoSuggestion) {
+    text = fmt::format("scan {}: no suggestion", report.index);
+  } else {
+    text = fmt::format("scan {}: {}: {}", report.index, ToString(report.status), report.message);
+  }
+  if (report.truth) {
+    text += fmt::format("; truth {} (instance {})", report.truth->class_name,
+                        report.truth->instance_seed);
+    if (report.pose_error) {
+      text += fmt::format(": rotation error {:.1f}° (mod symmetry), centre {:.1f} mm, ADD-S "
+                          "{:.1f} mm",
+                          report.pose_error->rotation_error_deg,
+                          1e3 * report.pose_error->center_error_m, 1e3 * report.pose_error->adds_m);
+    }
+  }
+  return text;
+}
+
+cv::Mat DrawScanOverlay(const ScanReport& report, const Database& database) {
+  const RecognitionResult& result = report.result.recognition;
+  if (result.empty()) {
+    const std::string label =
+        report.status == ScanStatus::kNoSuggestion ? "no suggestion" : ToString(report.status);
+    return DrawRecognitionOverlay(report.image, report.camera, std::vector<Eigen::Vector3f>{},
+                                  Rigid3d(), label);
+  }
+  const Suggestion& best = result.best();
+  const std::string label =
+      fmt::format("{} {} {:.2f}", best.class_name, best.model_name, best.score);
+  const ModelRecord& model = database.model(best.model);
+  try {
+    TriangleMesh mesh = ReadMesh(model.source_path);
+    mesh.Transform(model.scale, Eigen::Vector3d::Zero());
+    return DrawRecognitionOverlay(report.image, report.camera, mesh, best.cam_from_model, label);
+  } catch (const Error& e) {
+    spdlog::warn("overlay: {} — drawing the database view's points instead", e.what());
+    return DrawRecognitionOverlay(report.image, report.camera,
+                                  database.ViewCloud(best.view).points, best.cam_from_model,
+                                  label);
+  }
+}
+
+void AppendLine(const std::string& path, const std::string& line) {
+  const fs::path parent = fs::path(path).parent_path();
+  std::error_code error;
+  if (!parent.empty()) fs::create_directories(parent, error);
+  SOPE_CHECK(!error, "cannot create directory {}: {}", parent.string(), error.message());
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
+  SOPE_CHECK(fd >= 0, "cannot open {}: {}", path, std::strerror(errno));
+  struct stat before {};
+  const bool regular = ::fstat(fd, &before) == 0 && S_ISREG(before.st_mode);
+  const std::string data = line + "\n";
+  ssize_t written;
+  do {
+    written = ::write(fd, data.data(), data.size());
+  } while (written < 0 && errno == EINTR);
+  int failure = written < 0 ? errno : (static_cast<size_t>(written) != data.size() ? ENOSPC : 0);
+  if (failure == 0 && ::fsync(fd) != 0 && errno != EINVAL && errno != EROFS) failure = errno;
+  if (failure != 0) {
+    if (regular && ::ftruncate(fd, before.st_size) != 0) {
+      spdlog::warn("{}: could not cut back a partly written line: {}", path,
+                   std::strerror(errno));
+    }
+    ::close(fd);
+    SOPE_THROW("cannot append to {}: {}", path, std::strerror(failure));
+  }
+  SOPE_CHECK(::close(fd) == 0, "cannot append to {}: {}", path, std::strerror(errno));
+}
+
+}  // namespace sope

@@ -1,0 +1,135 @@
+// The scan-and-recognise controller (DESIGN.md data flow, pipeline/): scan after scan from
+// a ScanSource — decode + triangulate, cut the cloud down to the object with a range band,
+// recognise it and estimate its pose (recogniser/tools/scan_recognition.h) — compare with
+// the ground truth when the source has it (recogniser/pose_metrics.h ComparePoses), write
+// the outputs, and report each scan to a callback. `sope scan-and-recognise`, the tests
+// and the latency bench drive this one loop.
+//
+// A scan that finds nothing to recognise (nothing triangulated, nothing in the band) is a
+// result with its status (ScanStatus), not an error: a continuous run goes on when the
+// object is lifted away. Errors (an unreadable frame set, a lost camera, a full disk)
+// throw sope::Error.
+//
+// Outputs (options.out_dir), per scan: scan_NNNN.ply (the full cloud), scan_NNNN_object.ply
+// (the segmented cloud), scan_NNNN_overlay.png, and the scan's JSON line appended to
+// results.jsonl — the clouds and the overlay first (each atomic), the line last, appended
+// in one write. When the line cannot be written (a full disk) it is cut back and the
+// scan's other files are removed: results.jsonl lists exactly the scans whose files exist.
+#pragma once
+
+#include <atomic>
+#include <functional>
+#include <optional>
+#include <string>
+
+#include <opencv2/core/mat.hpp>
+
+#include "calibration/scan.h"
+#include "core/camera_model.h"
+#include "pipeline/scan_source.h"
+#include "recogniser/database.h"
+#include "recogniser/pose_metrics.h"
+#include "recogniser/recogniser.h"
+#include "recogniser/tools/scan_recognition.h"
+
+namespace sope {
+
+struct ScanAndRecogniseOptions {
+  ScanOptions scan;  // decoding and triangulation
+  RecognitionOptions recognition;
+  // The range band, metres from the camera centre. Unset: the source's band when it knows
+  // one (virtual scenes), else ObjectSegmentationOptions' defaults.
+  std::optional<double> min_range;
+  std::optional<double> max_range;
+  // Scans to take; −1: until the source is exhausted or cancelled. A source of fewer scans
+  // (frame-set directories) ends the run early.
+  int max_scans = 1;
+  // Per-scan files and results.jsonl go here; empty: none.
+  std::string out_dir;
+  // A scan with nothing to recognise (ScanStatus kNoPoints, kNothingInBand) throws
+  // sope::Error (its message) before its outputs are written, instead of being reported:
+  // for a single scan, where seeing nothing is a failure.
+  bool fail_on_nothing_found = false;
+  // Checked between scans; when it becomes true the run ends after the current scan (a
+  // capture under way is cancelled by the source's session, which watches the same flag).
+  const std::atomic<bool>* cancel = nullptr;
+  // Throws sope::Error naming the invalid value.
+  void Check() const;
+};
+
+struct ScanFiles {
+  std::string cloud, object_cloud, overlay;  // empty: not written
+};
+
+struct ScanReport {
+  int index = 0;
+  std::string source;
+  ScanStatus status = ScanStatus::kRecognised;
+  std::string message;             // what happened, when the status is not kRecognised
+  ScanRecognition result;          // the scan, the object cloud, the recognition, timings
+  double capture_ms = 0.0;
+  ObjectSegmentationOptions band;  // the band used
+  std::optional<ScanTruth> truth;
+  bool class_correct = false;      // truth known and the first suggestion's class is it
+  std::optional<PoseComparison> pose_error;  // truth known and the class correct
+  ScanFiles files;
+  std::string json;                // the results line (no newline)
+  // For the overlay: the camera's white frame (or its first frame) and the camera.
+  cv::Mat image;
+  CameraModel camera;
+};
+
+// Called after each scan, its outputs written.
+using ScanCallback = std::function<void(const ScanReport&)>;
+
+class ScanAndRecogniseController {
+ public:
+  // `source` and `database` must outlive the controller.
+  ScanAndRecogniseController(const ScanAndRecogniseOptions& options, ScanSource* source,
+                             const Database& database);
+  // Runs the scans. Returns how many were done. An interruption (options.cancel) during a
+  // capture ends the run quietly once at least one scan of a multi-scan run is done; else
+  // it throws like any capture error.
+  int Run(const ScanCallback& callback = {}, const CaptureProgress& progress = {});
+
+  // One scan of the source (no files written): what Run does per scan before the outputs.
+  ScanReport Scan(int index, const CaptureProgress& progress = {});
+
+ private:
+  ScanAndRecogniseOptions options_;
+  ScanSource* source_;
+  const Database& database_;
+  Recogniser recogniser_;
+  std::unique_ptr<Triangulator> triangulator_;  // per calibration (undistortion tables)
+  RigCalibration triangulator_calibration_;
+};
+
+// The DESIGN.md recognition result of the scan (empty recognition: no "class"…) plus
+// "status", "timing_ms" with the scan's stages (capture, decode, triangulate, segment,
+// recognise, frame_to_result), "scan" {index, source, points, object_points,
+// range_band_m}, "ground_truth" {class, instance_seed, pose, class_correct, and for the
+// right class rotation_error_deg, center_error_m, adds_m, diameter_m} when known, "files"
+// when written, and "objects": [] when nothing was recognised.
+std::string ScanReportToJson(const ScanReport& report);
+
+// One line for a terminal: the first suggestion (class, model, score), the object points
+// and the frame-to-result time by stage, or the status; and the ground truth with the pose
+// error when known.
+std::string ScanReportToText(const ScanReport& report);
+
+// report.image with the recognised model drawn on it (recogniser/tools/scan_recognition.h
+// DrawRecognitionOverlay): the model's mesh when it can be read, else the database view's
+// points; the status when nothing was recognised.
+cv::Mat DrawScanOverlay(const ScanReport& report, const Database& database);
+
+// Writes the scan's files into `out_dir` (see the header comment) and appends its line to
+// out_dir/results.jsonl; fills report->files and report->json. On failure removes what it
+// wrote for this scan and throws sope::Error.
+void WriteScanOutputs(const std::string& out_dir, const Database& database, ScanReport* report);
+
+// Appends `line` + '\n' to `path` (created if absent) in one write(2) and fsyncs it. When
+// the write fails or is short, the file is cut back to its previous length and
+// sope::Error names the file and the reason (e.g. "No space left on device").
+void AppendLine(const std::string& path, const std::string& line);
+
+}  // namespace sope

@@ -1,0 +1,143 @@
+// Sources of scans (DESIGN.md data flow, pipeline/): where a scan's frame set comes from —
+// recorded frame-set directories, the live rig (a V4L2 camera + projector window, a
+// replayed recording, or the virtual rig's built-in scene, through a RigSession), or
+// virtual recognition scenes (a procedural object in a seeded pose before a backdrop) with
+// their ground truth. The scan-and-recognise controller (pipeline/scan_and_recognise.h),
+// `sope scan` and the tests take any of them.
+#pragma once
+
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "capture/rig_session.h"
+#include "core/frame_set.h"
+#include "core/mesh.h"
+#include "core/rig_calibration.h"
+#include "core/rigid3d.h"
+#include "pipeline/live_rig.h"
+#include "projector/patterns.h"
+#include "recogniser/database.h"
+#include "recogniser/tools/scan_recognition.h"
+#include "simulator/procedural_objects.h"
+
+namespace sope {
+
+// What the scene really held (virtual sources only).
+struct ScanTruth {
+  std::string class_name;
+  uint64_t instance_seed = 0;
+  TriangleMesh mesh;       // model frame, metres
+  Rigid3d cam_from_model;
+};
+
+struct SourceScan {
+  FrameSet frames;
+  RigCalibration calibration;  // the rig the frames were taken with
+  std::string calibration_source = "the calibration";  // names it in messages
+  std::string source;          // "virtual", "/dev/video0", the frame-set directory, …
+  std::optional<ScanTruth> truth;
+  // A range band that keeps the object and none of the background, when the source knows
+  // one (the virtual scenes do); else the controller's default.
+  std::optional<ObjectSegmentationOptions> band;
+  double capture_ms = 0.0;     // capturing or loading the frame set
+};
+
+// (frames done, frames in the sequence) while a scan is captured.
+using CaptureProgress = std::function<void(size_t done, size_t total)>;
+
+class ScanSource {
+ public:
+  virtual ~ScanSource() = default;
+  // How many scans the source holds; −1: as many as asked for (a live rig).
+  virtual int size() const = 0;
+  // True when every scan is taken with the same calibration (a triangulator is reused).
+  virtual bool fixed_calibration() const = 0;
+  // Scan `index` (0, 1, … in order). Throws sope::Error on failure (an unreadable frame
+  // set, a lost camera, cancellation).
+  virtual SourceScan Next(int index, const CaptureProgress& progress = {}) = 0;
+};
+
+// Recorded frame sets, one scan each, in the order given. `calibration_path` (empty: the
+// file each frames.json names) is the rig.
+class FrameSetDirectorySource : public ScanSource {
+ public:
+  FrameSetDirectorySource(std::vector<std::string> directories, std::string calibration_path);
+  int size() const override { return static_cast<int>(directories_.size()); }
+  bool fixed_calibration() const override { return false; }
+  SourceScan Next(int index, const CaptureProgress& progress = {}) override;
+
+ private:
+  std::vector<std::string> directories_;
+  std::string calibration_path_;
+};
+
+// The live rig: OpenLiveRig(spec) driven by a RigSession, the pattern sequence of
+// `patterns` per scan. "virtual" is the built-in scene (MakeDemoScene, the mug of seed 0)
+// with its ground truth and a band that ends 0.1 m beyond the mug's centre (the backdrop
+// is 0.15 m behind it). With `record_directory`, Next(0) also records the frame set there
+// (calibration.yaml, capture.json; RigSession::Record) — one scan only.
+struct LiveRigSourceOptions {
+  std::string spec;                 // "/dev/videoN", "virtual", "replay:DIR"
+  RigCalibration calibration;
+  std::string calibration_source = "the calibration";
+  PatternOptions patterns;          // projector size = the calibration's
+  LiveRigOptions rig;
+  RigSessionOptions session;        // its `cancel` stops a capture
+  std::string record_directory;
+  void Check() const;
+};
+class LiveRigSource : public ScanSource {
+ public:
+  explicit LiveRigSource(const LiveRigSourceOptions& options);
+  int size() const override { return options_.record_directory.empty() ? -1 : 1; }
+  bool fixed_calibration() const override { return true; }
+  SourceScan Next(int index, const CaptureProgress& progress = {}) override;
+
+ private:
+  LiveRigSourceOptions options_;
+  LiveRig rig_;
+  std::unique_ptr<RigSession> session_;
+  std::vector<Pattern> sequence_;
+};
+
+// Virtual recognition scenes on the virtual rig (the true calibration), captured through
+// a RigSession like a live scan: scan i shows MakeRecognitionScene(seed + i) — a new
+// object in a new pose — with its ground truth and its band.
+struct VirtualSceneSourceOptions {
+  RigCalibration calibration;       // default: the virtual rig's true calibration
+  RecognitionSceneOptions scenes;
+  uint64_t seed = 1;
+  PatternOptions patterns;          // projector size = the calibration's
+  LiveRigOptions rig;               // the virtual camera's delay and jitter
+  RigSessionOptions session;
+  void Check() const;
+};
+class VirtualSceneSource : public ScanSource {
+ public:
+  explicit VirtualSceneSource(const VirtualSceneSourceOptions& options);
+  int size() const override { return -1; }
+  bool fixed_calibration() const override { return true; }
+  SourceScan Next(int index, const CaptureProgress& progress = {}) override;
+  // The scene of the last Next (before the first: of scan 0).
+  const RecognitionScene& scene() const { return scene_; }
+
+ private:
+  VirtualSceneSourceOptions options_;
+  RecognitionScene scene_;
+  LiveRig rig_;
+  std::unique_ptr<RigSession> session_;
+  std::vector<Pattern> sequence_;
+};
+
+// The database's classes that are procedural classes (mug, bottle, …: what virtual scenes
+// can show), in the database's order.
+std::vector<ObjectClass> ProceduralClassesIn(const Database& database);
+// Restricts the scenes to `spec`: "CLASS" (any instance) or "CLASS:SEED" (that instance).
+// Throws sope::Error naming the spec for an unknown class or a malformed seed.
+void RestrictScenesToObject(const std::string& spec, RecognitionSceneOptions* scenes);
+
+}  // namespace sope
