@@ -5,6 +5,7 @@
 
 #include "app/cli_util.h"
 #include "app/commands.h"
+#include "app/option_flags.h"
 #include "core/error.h"
 #include "recogniser/bop.h"
 #include "recogniser/database.h"
@@ -23,7 +24,6 @@ int RunEval(int argc, char** argv) {
                "sope eval"};
   std::string db_path, models_dir, out, method = "sope", protocol_text;
   EvalOptions options;
-  int top = 4;
   cli::LoggingFlags logging;
   app.add_option("--db", db_path, "Database file (.sopedb, from sope build-db)")->required();
   app.add_option("--models", models_dir,
@@ -43,7 +43,6 @@ int RunEval(int argc, char** argv) {
   app.add_option("--queries-per-model", options.queries_per_model, "Queries of each model")
       ->capture_default_str();
   app.add_option("--seed", options.seed, "Seed of the query poses")->capture_default_str();
-  app.add_option("--top", top, "Suggestions per query (top-k accuracy)")->capture_default_str();
   app.add_option("--min-distance", options.query.min_distance, "Query distance, metres")
       ->capture_default_str();
   app.add_option("--max-distance", options.query.max_distance, "Query distance, metres")
@@ -58,33 +57,10 @@ int RunEval(int argc, char** argv) {
                "range band) instead of rendering its depth; no occluder; ~1 s per query");
   app.add_option("--adds", options.adds_fraction, "ADD-S threshold, fraction of the diameter")
       ->capture_default_str();
-  // Tuning knobs of the recogniser (defaults: the method's).
-  int pose_models = -1, pose_views = -1, refine_candidates = -1;
-  double flag_fraction = -1.0;
-  app.add_option("--pose-models", pose_models, "Candidate models that get pose hypotheses");
-  app.add_option("--pose-views", pose_views, "Views per candidate model that get hypotheses");
-  app.add_option("--refine-candidates", refine_candidates, "Models whose best pose is refined");
-  int quick_iterations = -1;
-  double view_separation = -1.0;
-  bool rank_all_views = false;
-  app.add_option("--quick-iterations", quick_iterations, "Short ICP iterations per hypothesis");
-  app.add_option("--view-separation", view_separation,
-                 "Radians between the views of a candidate that get hypotheses");
-  app.add_flag("--rank-all-views", rank_all_views,
-               "Rank all views of candidate models, not only the flagged ones");
-  std::string grouping;
-  app.add_option("--grouping", grouping,
-                 "One suggestion per model, class or view (default: the method's)");
-  double empty_weight = -1.0;
-  app.add_option("--empty-weight", empty_weight,
-                 "Verification: weight of model points with no query point on their ray");
-  double ranking_penalty = -1.0;
-  app.add_option("--ranking-penalty", ranking_penalty,
-                 "Re-ranking key: alignment score − this × ranking distance");
-  bool no_rerank = false;
-  app.add_flag("--no-rerank", no_rerank,
-               "Keep the fine-stage order (no re-ranking by the alignment score)");
-  app.add_option("--flag-fraction", flag_fraction, "Fraction of the database flagged (k-best)");
+  // Recognition options (--top, --pose-models, --flag-fraction, …; RecognitionOptions::
+  // Fields()): bound to a scratch copy, and those given are applied over the method's.
+  RecognitionOptions given;
+  const auto recognition_flags = cli::AddOptionFlags(app, &given, RecognitionOptions::Fields());
   logging.Add(app);
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
@@ -104,18 +80,7 @@ int RunEval(int argc, char** argv) {
     SOPE_CHECK(method == "sope", "unknown --method '{}' (sope or thesis)", method);
   }
   options.method_name = method;
-  options.recognition.top_k = top;
-  if (pose_models >= 0) options.recognition.pose_models = pose_models;
-  if (pose_views >= 0) options.recognition.pose_views_per_model = pose_views;
-  if (refine_candidates >= 0) options.recognition.refine_candidates = refine_candidates;
-  if (quick_iterations >= 0) options.recognition.quick_iterations = quick_iterations;
-  if (view_separation >= 0.0) options.recognition.pose_view_separation = view_separation;
-  if (rank_all_views) options.recognition.rank_all_views_of_candidates = true;
-  if (!grouping.empty()) options.recognition.grouping = SuggestionGroupingFromString(grouping);
-  if (empty_weight >= 0.0) options.recognition.pose.empty_weight = empty_weight;
-  if (ranking_penalty >= 0.0) options.recognition.ranking_penalty = ranking_penalty;
-  if (no_rerank) options.recognition.rerank_by_alignment = false;
-  if (flag_fraction >= 0.0) options.recognition.flag_fraction = flag_fraction;
+  cli::ApplyGivenFlags(recognition_flags, given, &options.recognition);
   options.Check();
 
   std::vector<std::string> skipped;

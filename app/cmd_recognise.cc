@@ -5,6 +5,7 @@
 
 #include "app/cli_util.h"
 #include "app/commands.h"
+#include "app/option_flags.h"
 #include "core/error.h"
 #include "core/point_cloud.h"
 #include "recogniser/database.h"
@@ -18,17 +19,14 @@ int RunRecognise(int argc, char** argv) {
                "pose: class, model, database viewpoint and cam_from_model (X_cam = R·X_model + "
                "t), ICP-refined and verified. --json prints one JSON object per line.",
                "sope recognise"};
-  std::string db_path, cloud_path, grouping = "model";
-  int top = 4;
+  std::string db_path, cloud_path;
+  RecognitionOptions options;
   bool json = false, no_pose = false;
   std::string coarse_index_path;
   cli::LoggingFlags logging;
   app.add_option("--db", db_path, "Database file (.sopedb, from sope build-db)")->required();
   app.add_option("--cloud", cloud_path, "Query cloud (.ply or .pcd)")->required();
-  app.add_option("--top", top, "Number of suggestions")->capture_default_str();
-  app.add_option("--grouping", grouping,
-                 "One suggestion per model, per class, or per database view (thesis)")
-      ->capture_default_str();
+  cli::AddOptionFlags(app, &options, RecognitionOptions::Fields());
   app.add_flag("--no-pose", no_pose, "Skip pose estimation and verification (ranking only)");
   app.add_flag("--json", json, "Print the result as one JSON object");
   app.add_option("--coarse-index", coarse_index_path,
@@ -38,10 +36,7 @@ int RunRecognise(int argc, char** argv) {
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
 
-  RecognitionOptions options;
-  options.top_k = top;
-  options.grouping = SuggestionGroupingFromString(grouping);
-  if (no_pose) options.pose_models = 0;
+  if (no_pose) options.screening.models = 0;
   options.Check();
 
   const std::unique_ptr<Database> db = Database::Open(db_path);
@@ -49,13 +44,14 @@ int RunRecognise(int argc, char** argv) {
   std::unique_ptr<FaissCoarseIndex> coarse_index;
   if (!coarse_index_path.empty()) {
     coarse_index = FaissCoarseIndex::Read(coarse_index_path, db->codes().bits, db->num_views());
-    options.coarse_kbest = [&](const uint64_t* code, int k) {
+    options.coarse.coarse_kbest = [&](const uint64_t* code, int k) {
       return coarse_index->KBestSearch(code, k);
     };
   }
   const RecognitionResult result = Recogniser(*db).Recognise(cloud, options);
   SOPE_CHECK(!result.empty(), "no suggestion (the database has no comparable view)");
   if (json) {
+    // Not recognised: "class": null, the best guess among the candidates.
     std::printf("%s\n", RecognitionResultToJson(result).c_str());
   } else {
     std::printf("%s\n", result.BriefReport().c_str());

@@ -10,6 +10,7 @@
 #include "app/pipeline_flags.h"
 #include "core/error.h"
 #include "core/mesh.h"
+#include "core/object_size.h"
 #include "core/rig_calibration.h"
 #include "simulator/board_sequence.h"
 #include "simulator/scene_builder.h"
@@ -19,10 +20,9 @@
 namespace sope {
 namespace {
 
-// Meshes outside this diagonal range (metres) are in other units: rescale them.
-constexpr double kMinPlausibleSize = 0.02;
-constexpr double kMaxPlausibleSize = 1.5;
-constexpr double kDefaultObjectSize = 0.25;
+// Meshes outside the plausible diagonal range (core/object_size.h, as build-db) are in
+// other units: rescale them.
+constexpr double kDefaultObjectSize = kDefaultObjectDiagonal;
 // Beyond this (metres) nothing of the scene can reach a bench-top rig's image.
 constexpr double kMaxSceneDistance = 100.0;
 
@@ -136,7 +136,7 @@ int RunSimulate(int argc, char** argv) {
     placement.size = size;
   } else {
     const double diagonal = mesh.BoundingDiagonal();
-    if (diagonal < kMinPlausibleSize || diagonal > kMaxPlausibleSize) {
+    if (!IsPlausibleDiagonal(diagonal)) {
       placement.size = kDefaultObjectSize;
       spdlog::info("mesh diagonal is {:.3g} units: scaling it to {} m (use --object-size)",
                    diagonal, kDefaultObjectSize);

@@ -24,6 +24,7 @@
 #include "bench/bench_support.h"
 #include "core/camera_model.h"
 #include "core/rigid3d.h"
+#include "core/units.h"
 #include "recogniser/features.h"
 #include "recogniser/preprocess.h"
 #include "simulator/procedural_objects.h"
@@ -32,7 +33,6 @@
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 const PointCloud& BottleView() {
   static const PointCloud cloud = [] {

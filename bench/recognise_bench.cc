@@ -36,6 +36,10 @@
 //  BM_FineStage/sope_rank             ours without pose (pose_models = 0): pre-processing,
 //                                     features, coarse search and fine ranking; top-1 = the
 //                                     best-ranked view's model
+//  BM_StagesAlone/fine+screen+refine  the fine stage, pose screening and refinement called
+//                                     alone (recogniser/stages.h) on precomputed coarse
+//                                     results; compare its fine/pose medians with
+//                                     BM_Recognise/sope's (no widening here)
 //  BM_FineStage/pcl_vfh_flann         PCL's "cluster recognition and 6DOF pose estimation
 //                                     using VFH" tutorial: query → VoxelGrid (4 mm, as ours) →
 //                                     NormalEstimation (k = 12, as ours; kd-tree) →
@@ -97,8 +101,10 @@
 #include "bench/bench_support.h"
 #include "core/camera_model.h"
 #include "core/mesh.h"
+#include "core/stopwatch.h"
 #include "recogniser/database.h"
 #include "recogniser/recogniser.h"
+#include "recogniser/stages.h"
 #include "recogniser/tools/database_builder.h"
 #include "recogniser/tools/synthetic_queries.h"
 #include "recogniser/view_description.h"
@@ -315,7 +321,7 @@ void BM_Recognise(benchmark::State& state, const std::string& name, bool thesis_
   for (auto _ : state) {
     const Query& query = data.queries[q];
     q = (q + 1) % data.queries.size();
-    const internal::Stopwatch watch;
+    const Stopwatch watch;
     const RecognitionResult result = recogniser.Recognise(query.cloud, options);
     s.wall.push_back(watch.WallMs());
     const RecognitionTimings& t = result.timing;
@@ -339,6 +345,54 @@ void BM_Recognise(benchmark::State& state, const std::string& name, bool thesis_
     }
   }
   Report(state, name, s);
+}
+
+// The stages called alone (recogniser/stages.h): pre-processing, features and the coarse
+// search done once per query before timing; each iteration times the fine stage and the
+// pose screening + refinement (no widening) on their own, CPU ms — beside BM_Recognise/sope's
+// fine and pose stages in the same run. Top-1: the best refined hypothesis's model.
+void BM_StagesAlone(benchmark::State& state) {
+  Data& data = GetData();
+  const Database& db = *data.sope_db;
+  const RecognitionOptions options;
+  std::vector<ViewDescription> queries;
+  std::vector<CoarseResult> coarse;
+  queries.reserve(data.queries.size());
+  coarse.reserve(data.queries.size());
+  for (const Query& query : data.queries) {
+    queries.push_back(DescribeQuery(db, query.cloud));
+    coarse.push_back(CoarseStage(db, queries.back(), options));
+  }
+  Samples s;
+  size_t q = 0;
+  for (auto _ : state) {
+    const size_t i = q;
+    q = (q + 1) % data.queries.size();
+    const Stopwatch watch;
+    StageContext context(db, queries[i], coarse[i]);
+    const FineResult fine = FineStage(&context, options);
+    const double fine_ms = watch.CpuMs();
+    const ScreeningRequest plan = PlanScreening(context, fine, options);
+    const RefinementResult refined = RefinePoses(
+        &context, ScreenPoses(&context, fine, plan, options), options.refinement.candidates, options);
+    const double total_ms = watch.CpuMs();
+    s.wall.push_back(watch.WallMs());
+    s.total.push_back(total_ms);
+    s.stages["fine"].push_back(fine_ms);
+    s.stages["pose"].push_back(total_ms - fine_ms);
+    s.flagged.push_back(static_cast<double>(coarse[i].flagged.size()) / db.num_views());
+    ++s.queries;
+    const PoseCandidate* best = nullptr;
+    for (const PoseCandidate& c : refined.candidates) {
+      if (c.refined && (best == nullptr || c.alignment.score > best->alignment.score)) best = &c;
+    }
+    if (best != nullptr) {
+      const ModelRecord& model = db.model(best->model);
+      s.model_ok += model.name == data.queries[i].model_name;
+      s.class_ok += model.class_name == data.queries[i].class_name;
+    }
+  }
+  Report(state, "BM_StagesAlone/fine+screen+refine", s);
 }
 
 // --- PCL tutorial pipeline ---------------------------------------------------------------
@@ -371,7 +425,7 @@ struct FlannIndex {
     // The kd-trees split on randomly chosen dimensions (rand()): seed it, so the index, and
     // the accuracy, do not depend on what ran before in the process.
     flann::seed_random(1);
-    const internal::Stopwatch watch;
+    const Stopwatch watch;
     flann::Matrix<float> matrix(storage.data(), rows, kVfhBins);
     index = linear ? std::make_unique<flann::Index<flann::ChiSquareDistance<float>>>(
                          matrix, flann::LinearIndexParams())
@@ -412,7 +466,7 @@ const FlannIndex& PclKdTreeIndex() {
   static const FlannIndex index = [] {
     const Database& db = *GetData().sope_db;
     FlannIndex out;
-    const internal::Stopwatch watch;
+    const Stopwatch watch;
     out.storage.resize(static_cast<size_t>(db.num_views()) * kVfhBins);
     PointCloud cloud;
     for (int v = 0; v < db.num_views(); ++v) {
@@ -483,8 +537,8 @@ void BM_PclVfhFlann(benchmark::State& state, bool linear) {
   for (auto _ : state) {
     const Query& query = data.queries[q];
     q = (q + 1) % data.queries.size();
-    const internal::Stopwatch total;
-    internal::Stopwatch stage;
+    const Stopwatch total;
+    Stopwatch stage;
     // Pre-processing: voxel grid, normals (towards the sensor at the origin).
     auto raw = pcl::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
     raw->reserve(query.cloud.size());
@@ -535,12 +589,12 @@ void BM_FlannOnSopeVfh(benchmark::State& state) {
   for (auto _ : state) {
     const Query& query = data.queries[q];
     q = (q + 1) % data.queries.size();
-    const internal::Stopwatch total;
+    const Stopwatch total;
     const ViewDescription description =
         DescribeView(query.cloud, db.options().preprocess, db.options().features);
     s.stages["pre"].push_back(description.preprocess_cpu_ms);
     s.stages["feat"].push_back(description.features_cpu_ms);
-    internal::Stopwatch stage;
+    Stopwatch stage;
     const std::vector<int> result = index.Search(description.features.fine.data());
     s.stages["knn"].push_back(stage.CpuMs());
     s.total.push_back(total.CpuMs());
@@ -591,7 +645,7 @@ void RegisterAll() {
   const int iterations = kQueries * Passes();
   RecognitionOptions sope_options;
   RecognitionOptions rank_only;
-  rank_only.pose_models = 0;
+  rank_only.screening.models = 0;
   const RecognitionOptions thesis_mlh = RecognitionOptions::ThesisPreset(HashMethod::kMinimalLoss);
   const RecognitionOptions thesis_itq = RecognitionOptions::ThesisPreset(HashMethod::kItq);
   auto add = [&](const std::string& name, auto&&... args) {
@@ -605,6 +659,7 @@ void RegisterAll() {
       std::string("BM_Recognise/thesis_opts_sope_db"), false, thesis_itq);
   add("BM_FineStage/sope_rank", BM_Recognise, std::string("BM_FineStage/sope_rank"), false,
       rank_only);
+  add("BM_StagesAlone/fine+screen+refine", BM_StagesAlone);
   add("BM_FineStage/pcl_vfh_flann", BM_PclVfhFlann, false);
   add("BM_FineStage/pcl_vfh_flann_linear", BM_PclVfhFlann, true);
   add("BM_FineStage/flann_on_sope_vfh", BM_FlannOnSopeVfh);

@@ -16,6 +16,7 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/options_json.h"
 #include "recogniser/crc32c.h"
 
 static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__,
@@ -85,164 +86,137 @@ uint64_t AlignUp(uint64_t value, uint64_t alignment) {
 }
 
 // ---- options ↔ JSON ---------------------------------------------------------------------
+// One field description per stored option (core/options.h); the JSON keys are those of
+// format version 1 (plus preprocess.outlier_min_ratio and features.bezier_smoothing, which
+// older files lack: they read as the defaults those files were built with).
 
-json PreprocessToJson(const PreprocessOptions& o) {
-  return {{"min_range", o.min_range},
-          {"max_range", o.max_range},
-          {"outlier_neighbours", o.outlier_neighbours},
-          {"outlier_stddev", o.outlier_stddev},
-          {"voxel_leaf", o.voxel_leaf},
-          {"normal_neighbours", o.normal_neighbours},
-          {"normalisation", ToString(o.normalisation)},
-          {"median_fraction", o.median_fraction},
-          {"min_points", o.min_points}};
+const std::vector<OptionField<PreprocessOptions>>& PreprocessFields() {
+  using O = PreprocessOptions;
+  static const std::vector<OptionField<O>> fields = {
+      Field(&O::min_range, "min_range", "Nearest range kept").Unit("m"),
+      Field(&O::max_range, "max_range", "Farthest range kept").Unit("m"),
+      Field(&O::outlier_neighbours, "outlier_neighbours", "Outlier filter neighbours"),
+      Field(&O::outlier_stddev, "outlier_stddev", "Outlier filter threshold, σ"),
+      Field(&O::outlier_min_ratio, "outlier_min_ratio", "Outlier filter minimum ratio"),
+      Field(&O::voxel_leaf, "voxel_leaf", "Voxel grid leaf").Unit("m"),
+      Field(&O::normal_neighbours, "normal_neighbours", "Normal estimation neighbours"),
+      Field(&O::normalisation, "normalisation", "Scale normalisation"),
+      Field(&O::median_fraction, "median_fraction", "Median normalisation quantile"),
+      Field(&O::min_points, "min_points", "Fewest points after pre-processing")};
+  return fields;
 }
 
-PreprocessOptions PreprocessFromJson(const json& j) {
-  PreprocessOptions o;
-  o.min_range = j.value("min_range", o.min_range);
-  o.max_range = j.value("max_range", o.max_range);
-  o.outlier_neighbours = j.value("outlier_neighbours", o.outlier_neighbours);
-  o.outlier_stddev = j.value("outlier_stddev", o.outlier_stddev);
-  o.voxel_leaf = j.value("voxel_leaf", o.voxel_leaf);
-  o.normal_neighbours = j.value("normal_neighbours", o.normal_neighbours);
-  if (j.contains("normalisation")) {
-    o.normalisation = ScaleNormalisationFromString(j.at("normalisation").get<std::string>());
-  }
-  o.median_fraction = j.value("median_fraction", o.median_fraction);
-  o.min_points = j.value("min_points", o.min_points);
-  return o;
+const std::vector<OptionField<FeatureOptions>>& FeatureFields() {
+  using O = FeatureOptions;
+  static const std::vector<OptionField<O>> fields = {
+      Field(&O::kde_bandwidth, "kde_bandwidth", "Shape distribution KDE bandwidth"),
+      Field(&O::kde_samples, "kde_samples", "Shape distribution samples"),
+      Field(&O::direction_components_xyz, "direction_components_xyz", "Direction components"),
+      Field(&O::bezier_order_u, "bezier_order_u", "Bézier patch order u"),
+      Field(&O::bezier_order_v, "bezier_order_v", "Bézier patch order v"),
+      Field(&O::bezier_iterations, "bezier_iterations", "Bézier fit iterations"),
+      Field(&O::bezier_smoothing, "bezier_smoothing", "Bézier control-net smoothness weight"),
+      Field(&O::metric_size, "metric_size", "Metric size block in the coarse vector"),
+      Field(&O::fine, "fine", "Fine descriptor")};
+  return fields;
 }
 
-json FeaturesToJson(const FeatureOptions& o) {
-  return {{"kde_bandwidth", o.kde_bandwidth},
-          {"kde_samples", o.kde_samples},
-          {"direction_components_xyz", o.direction_components_xyz},
-          {"bezier_order_u", o.bezier_order_u},
-          {"bezier_order_v", o.bezier_order_v},
-          {"bezier_iterations", o.bezier_iterations},
-          {"metric_size", o.metric_size},
-          {"fine", ToString(o.fine)}};
+const std::vector<OptionField<HashOptions>>& HashFields() {
+  using O = HashOptions;
+  static const std::vector<OptionField<O>> fields = [] {
+    std::vector<OptionField<O>> f = {
+        Field(&O::method, "method", "Binary codes (default: the preset's)").Flag("--hash"),
+        Field(&O::bits, "bits", "Code length, bits (default: the preset's, 64)")
+            .In(HashOptions::kMinBits, HashOptions::kMaxBits)
+            .Flag("--bits"),
+        Field(&O::seed, "seed", "Training seed"),
+        Field(&O::max_training_samples, "max_training_samples", "Training samples at most")};
+    AppendNested(&f, &O::lsh, "lsh",
+                 std::vector<OptionField<LshOptions>>{Field(
+                     &LshOptions::threshold_spread, "threshold_spread", "Threshold spread")});
+    using M = MlhOptions;
+    AppendNested(&f, &O::mlh, "mlh",
+                 std::vector<OptionField<M>>{
+                     Field(&M::margin_fraction, "margin_fraction", "Hinge margin"),
+                     Field(&M::lambda, "lambda", "Loss ratio"),
+                     Field(&M::learning_rate, "learning_rate", "Learning rate"),
+                     Field(&M::momentum, "momentum", "Momentum"),
+                     Field(&M::weight_decay, "weight_decay", "Weight decay"),
+                     Field(&M::iterations, "iterations", "Iterations"),
+                     Field(&M::pairs_per_batch, "pairs_per_batch", "Pairs per batch"),
+                     Field(&M::training_points, "training_points", "Training points"),
+                     Field(&M::neighbours, "neighbours", "Neighbours")});
+    using B = BreOptions;
+    AppendNested(&f, &O::bre, "bre",
+                 std::vector<OptionField<B>>{
+                     Field(&B::kernel, "kernel", "Kernel"),
+                     Field(&B::bandwidth_scale, "bandwidth_scale", "Bandwidth scale"),
+                     Field(&B::anchors, "anchors", "Anchors"),
+                     Field(&B::training_points, "training_points", "Training points"),
+                     Field(&B::neighbours, "neighbours", "Neighbours"),
+                     Field(&B::updates_per_bit, "updates_per_bit", "Updates per bit")});
+    AppendNested(&f, &O::itq, "itq",
+                 std::vector<OptionField<ItqOptions>>{
+                     Field(&ItqOptions::iterations, "iterations", "Iterations")});
+    return f;
+  }();
+  return fields;
 }
 
-FeatureOptions FeaturesFromJson(const json& j) {
-  FeatureOptions o;
-  o.kde_bandwidth = j.value("kde_bandwidth", o.kde_bandwidth);
-  o.kde_samples = j.value("kde_samples", o.kde_samples);
-  o.direction_components_xyz = j.value("direction_components_xyz", o.direction_components_xyz);
-  o.bezier_order_u = j.value("bezier_order_u", o.bezier_order_u);
-  o.bezier_order_v = j.value("bezier_order_v", o.bezier_order_v);
-  o.bezier_iterations = j.value("bezier_iterations", o.bezier_iterations);
-  o.metric_size = j.value("metric_size", o.metric_size);
-  if (j.contains("fine")) o.fine = FineDescriptorFromString(j.at("fine").get<std::string>());
-  return o;
+}  // namespace
+
+const std::vector<OptionField<DatabaseOptions>>& DatabaseOptions::Fields() {
+  using O = DatabaseOptions;
+  static const std::vector<OptionField<O>> fields = [] {
+    std::vector<OptionField<O>> f = {
+        Field(&O::layout, "layout",
+              "Viewpoints: thesis (18 on five declination rings) or fibonacci (any number, "
+              "even sphere sampling); default: thesis for 18 views under --preset thesis, else "
+              "fibonacci")
+            .Flag("--layout"),
+        Field(&O::views_per_model, "views_per_model",
+              "Viewpoints per model (default: the preset's)")
+            .AtLeast(1)
+            .Flag("--views")};
+    using R = ViewRenderOptions;
+    AppendNested(&f, &O::render, "render",
+                 std::vector<OptionField<R>>{
+                     Field(&R::width, "width", "Image width, pixels"),
+                     Field(&R::height, "height", "Image height, pixels"),
+                     Field(&R::horizontal_fov, "horizontal_fov", "Field of view").Unit("rad"),
+                     Field(&R::distance, "distance", "Camera distance").Unit("m"),
+                     Field(&R::fit_margin, "fit_margin", "Fit margin")});
+    using Z = SizeNormalisationOptions;
+    AppendNested(&f, &O::size, "size",
+                 std::vector<OptionField<Z>>{
+                     Field(&Z::min_plausible_diagonal, "min_plausible_diagonal",
+                           "Smallest plausible diagonal")
+                         .Unit("m"),
+                     Field(&Z::max_plausible_diagonal, "max_plausible_diagonal",
+                           "Largest plausible diagonal")
+                         .Unit("m"),
+                     Field(&Z::target_diagonal, "target_diagonal", "Diagonal of scaled meshes")
+                         .Unit("m")});
+    AppendNested(&f, &O::preprocess, "preprocess", PreprocessFields());
+    AppendNested(&f, &O::features, "features", FeatureFields());
+    AppendNested(&f, &O::hash, "hash", HashFields());
+    f.push_back(Field(&O::view_cloud_points, "view_cloud_points", "Points kept per view"));
+    f.push_back(Field(&O::equal_block_weights, "equal_block_weights", "Equal coarse blocks"));
+    f.push_back(Field(&O::hash_fine_weight, "hash_fine_weight", "Fine part of the hashed vector"));
+    return f;
+  }();
+  return fields;
 }
 
-json HashToJson(const HashOptions& o) {
-  return {{"method", ToString(o.method)},
-          {"bits", o.bits},
-          {"seed", o.seed},
-          {"max_training_samples", o.max_training_samples},
-          {"lsh", {{"threshold_spread", o.lsh.threshold_spread}}},
-          {"mlh",
-           {{"margin_fraction", o.mlh.margin_fraction},
-            {"lambda", o.mlh.lambda},
-            {"learning_rate", o.mlh.learning_rate},
-            {"momentum", o.mlh.momentum},
-            {"weight_decay", o.mlh.weight_decay},
-            {"iterations", o.mlh.iterations},
-            {"pairs_per_batch", o.mlh.pairs_per_batch},
-            {"training_points", o.mlh.training_points},
-            {"neighbours", o.mlh.neighbours}}},
-          {"bre",
-           {{"kernel", ToString(o.bre.kernel)},
-            {"bandwidth_scale", o.bre.bandwidth_scale},
-            {"anchors", o.bre.anchors},
-            {"training_points", o.bre.training_points},
-            {"neighbours", o.bre.neighbours},
-            {"updates_per_bit", o.bre.updates_per_bit}}},
-          {"itq", {{"iterations", o.itq.iterations}}}};
-}
-
-HashOptions HashFromJson(const json& j) {
-  HashOptions o;
-  if (j.contains("method")) o.method = HashMethodFromString(j.at("method").get<std::string>());
-  o.bits = j.value("bits", o.bits);
-  o.seed = j.value("seed", o.seed);
-  o.max_training_samples = j.value("max_training_samples", o.max_training_samples);
-  if (j.contains("lsh")) {
-    o.lsh.threshold_spread = j["lsh"].value("threshold_spread", o.lsh.threshold_spread);
-  }
-  if (j.contains("mlh")) {
-    const json& m = j["mlh"];
-    o.mlh.margin_fraction = m.value("margin_fraction", o.mlh.margin_fraction);
-    o.mlh.lambda = m.value("lambda", o.mlh.lambda);
-    o.mlh.learning_rate = m.value("learning_rate", o.mlh.learning_rate);
-    o.mlh.momentum = m.value("momentum", o.mlh.momentum);
-    o.mlh.weight_decay = m.value("weight_decay", o.mlh.weight_decay);
-    o.mlh.iterations = m.value("iterations", o.mlh.iterations);
-    o.mlh.pairs_per_batch = m.value("pairs_per_batch", o.mlh.pairs_per_batch);
-    o.mlh.training_points = m.value("training_points", o.mlh.training_points);
-    o.mlh.neighbours = m.value("neighbours", o.mlh.neighbours);
-  }
-  if (j.contains("bre")) {
-    const json& b = j["bre"];
-    if (b.contains("kernel")) o.bre.kernel = BreKernelFromString(b["kernel"].get<std::string>());
-    o.bre.bandwidth_scale = b.value("bandwidth_scale", o.bre.bandwidth_scale);
-    o.bre.anchors = b.value("anchors", o.bre.anchors);
-    o.bre.training_points = b.value("training_points", o.bre.training_points);
-    o.bre.neighbours = b.value("neighbours", o.bre.neighbours);
-    o.bre.updates_per_bit = b.value("updates_per_bit", o.bre.updates_per_bit);
-  }
-  if (j.contains("itq")) o.itq.iterations = j["itq"].value("iterations", o.itq.iterations);
-  return o;
-}
+namespace {
 
 json OptionsToJsonObject(const DatabaseOptions& o) {
-  return {{"layout", ToString(o.layout)},
-          {"views_per_model", o.views_per_model},
-          {"render",
-           {{"width", o.render.width},
-            {"height", o.render.height},
-            {"horizontal_fov", o.render.horizontal_fov},
-            {"distance", o.render.distance},
-            {"fit_margin", o.render.fit_margin}}},
-          {"size",
-           {{"min_plausible_diagonal", o.size.min_plausible_diagonal},
-            {"max_plausible_diagonal", o.size.max_plausible_diagonal},
-            {"target_diagonal", o.size.target_diagonal}}},
-          {"preprocess", PreprocessToJson(o.preprocess)},
-          {"features", FeaturesToJson(o.features)},
-          {"hash", HashToJson(o.hash)},
-          {"view_cloud_points", o.view_cloud_points},
-          {"equal_block_weights", o.equal_block_weights},
-          {"hash_fine_weight", o.hash_fine_weight}};
+  return FieldsToJson(o, DatabaseOptions::Fields());
 }
 
 DatabaseOptions OptionsFromJsonObject(const json& j) {
   DatabaseOptions o;
-  if (j.contains("layout")) o.layout = ViewpointLayoutFromString(j["layout"].get<std::string>());
-  o.views_per_model = j.value("views_per_model", o.views_per_model);
-  if (j.contains("render")) {
-    const json& r = j["render"];
-    o.render.width = r.value("width", o.render.width);
-    o.render.height = r.value("height", o.render.height);
-    o.render.horizontal_fov = r.value("horizontal_fov", o.render.horizontal_fov);
-    o.render.distance = r.value("distance", o.render.distance);
-    o.render.fit_margin = r.value("fit_margin", o.render.fit_margin);
-  }
-  if (j.contains("size")) {
-    const json& s = j["size"];
-    o.size.min_plausible_diagonal = s.value("min_plausible_diagonal", o.size.min_plausible_diagonal);
-    o.size.max_plausible_diagonal = s.value("max_plausible_diagonal", o.size.max_plausible_diagonal);
-    o.size.target_diagonal = s.value("target_diagonal", o.size.target_diagonal);
-  }
-  if (j.contains("preprocess")) o.preprocess = PreprocessFromJson(j["preprocess"]);
-  if (j.contains("features")) o.features = FeaturesFromJson(j["features"]);
-  if (j.contains("hash")) o.hash = HashFromJson(j["hash"]);
-  o.view_cloud_points = j.value("view_cloud_points", o.view_cloud_points);
-  o.equal_block_weights = j.value("equal_block_weights", o.equal_block_weights);
-  o.hash_fine_weight = j.value("hash_fine_weight", o.hash_fine_weight);
+  FieldsFromJson(j, DatabaseOptions::Fields(), &o);
   return o;
 }
 
@@ -397,12 +371,11 @@ void DatabaseData::Check() const {
 
 // ---- writing -------------------------------------------------------------------------------
 
-void WriteDatabase(const std::string& path, const DatabaseData& data) {
-  data.Check();
-  const int num_views = static_cast<int>(data.views.size());
-  std::vector<std::string> sections(kNumSections);
+namespace {
 
-  // metadata
+// The metadata section: format, options, classes, models, sizes, coarse layout, scales.
+std::string MetadataSection(const DatabaseData& data) {
+  const int num_views = static_cast<int>(data.views.size());
   json meta;
   meta["format"] = "sope-db";
   meta["version"] = kDatabaseFormatVersion;
@@ -434,10 +407,12 @@ void WriteDatabase(const std::string& path, const DatabaseData& data) {
   meta["distance_scales"] = {{"fine", data.distance_scales.fine},
                              {"coarse", data.distance_scales.coarse},
                              {"size", data.distance_scales.size}};
-  sections[kMetadata] = meta.dump(1);
+  return meta.dump(1);
+}
 
-  // views
-  std::string& views = sections[kViews];
+std::string ViewsSection(const DatabaseData& data) {
+  const int num_views = static_cast<int>(data.views.size());
+  std::string views;
   views.resize(sizeof(ViewRecordOnDisk) * num_views);
   for (int v = 0; v < num_views; ++v) {
     const ViewRecord& view = data.views[v];
@@ -457,35 +432,14 @@ void WriteDatabase(const std::string& path, const DatabaseData& data) {
     record.preprocessed_points = view.preprocessed_points;
     std::memcpy(&views[sizeof(record) * v], &record, sizeof(record));
   }
+  return views;
+}
 
-  // hasher
-  const std::vector<uint8_t> hasher = data.hasher.Serialize();
-  sections[kHasher].assign(reinterpret_cast<const char*>(hasher.data()), hasher.size());
-
-  // standardisation
-  const int coarse_dim = static_cast<int>(data.coarse.cols());
-  const int fine_dim = static_cast<int>(data.fine.cols());
-  std::string& standard = sections[kStandard];
-  standard.resize(sizeof(float) * (2 * coarse_dim + fine_dim + 1));
-  std::memcpy(&standard[0], data.coarse_mean.data(), sizeof(float) * coarse_dim);
-  std::memcpy(&standard[sizeof(float) * coarse_dim], data.coarse_scale.data(),
-              sizeof(float) * coarse_dim);
-  std::memcpy(&standard[sizeof(float) * 2 * coarse_dim], data.fine_mean.data(),
-              sizeof(float) * fine_dim);
-  std::memcpy(&standard[sizeof(float) * (2 * coarse_dim + fine_dim)], &data.fine_hash_scale,
-              sizeof(float));
-
-  // codes, coarse, fine
-  sections[kCodes].assign(reinterpret_cast<const char*>(data.codes.words.data()),
-                          data.codes.words.size() * sizeof(uint64_t));
-  sections[kCoarse].assign(reinterpret_cast<const char*>(data.coarse.data()),
-                           sizeof(float) * data.coarse.size());
-  sections[kFine].assign(reinterpret_cast<const char*>(data.fine.data()),
-                         sizeof(float) * data.fine.size());
-
-  // clouds
+// View clouds: int16 offsets from the model centre in cloud_quantum steps, int16 normals.
+std::string CloudsSection(const DatabaseData& data) {
+  const int num_views = static_cast<int>(data.views.size());
+  std::string clouds;
   const int stride = data.options.view_cloud_points;
-  std::string& clouds = sections[kClouds];
   clouds.assign(sizeof(CloudPointOnDisk) * stride * static_cast<size_t>(num_views), '\0');
   for (int v = 0; v < num_views; ++v) {
     const ModelRecord& model = data.models[data.views[v].model];
@@ -505,8 +459,11 @@ void WriteDatabase(const std::string& path, const DatabaseData& data) {
       }
     }
   }
+  return clouds;
+}
 
-  // layout
+// The whole file: header, section table, sections at aligned offsets.
+std::string AssembleFile(const std::vector<std::string>& sections) {
   const uint64_t table_end = kHeaderBytes + kSectionEntryBytes * kNumSections;
   std::vector<SectionEntryOnDisk> entries(kNumSections);
   uint64_t offset = AlignUp(table_end, kSectionAlignment);
@@ -538,7 +495,44 @@ void WriteDatabase(const std::string& path, const DatabaseData& data) {
       std::memcpy(&file[entries[s].offset], sections[s].data(), sections[s].size());
     }
   }
-  WriteFileAtomic(path, file);
+  return file;
+}
+
+}  // namespace
+
+void WriteDatabase(const std::string& path, const DatabaseData& data) {
+  data.Check();
+  std::vector<std::string> sections(kNumSections);
+  sections[kMetadata] = MetadataSection(data);
+  sections[kViews] = ViewsSection(data);
+
+  // hasher
+  const std::vector<uint8_t> hasher = data.hasher.Serialize();
+  sections[kHasher].assign(reinterpret_cast<const char*>(hasher.data()), hasher.size());
+
+  // standardisation
+  const int coarse_dim = static_cast<int>(data.coarse.cols());
+  const int fine_dim = static_cast<int>(data.fine.cols());
+  std::string& standard = sections[kStandard];
+  standard.resize(sizeof(float) * (2 * coarse_dim + fine_dim + 1));
+  std::memcpy(&standard[0], data.coarse_mean.data(), sizeof(float) * coarse_dim);
+  std::memcpy(&standard[sizeof(float) * coarse_dim], data.coarse_scale.data(),
+              sizeof(float) * coarse_dim);
+  std::memcpy(&standard[sizeof(float) * 2 * coarse_dim], data.fine_mean.data(),
+              sizeof(float) * fine_dim);
+  std::memcpy(&standard[sizeof(float) * (2 * coarse_dim + fine_dim)], &data.fine_hash_scale,
+              sizeof(float));
+
+  // codes, coarse, fine
+  sections[kCodes].assign(reinterpret_cast<const char*>(data.codes.words.data()),
+                          data.codes.words.size() * sizeof(uint64_t));
+  sections[kCoarse].assign(reinterpret_cast<const char*>(data.coarse.data()),
+                           sizeof(float) * data.coarse.size());
+  sections[kFine].assign(reinterpret_cast<const char*>(data.fine.data()),
+                         sizeof(float) * data.fine.size());
+
+  sections[kClouds] = CloudsSection(data);
+  WriteFileAtomic(path, AssembleFile(sections));
 }
 
 // ---- reading -------------------------------------------------------------------------------

@@ -41,6 +41,8 @@
 
 #include <Eigen/Core>
 
+#include "core/object_size.h"
+#include "core/options.h"
 #include "core/point_cloud.h"
 #include "core/rigid3d.h"
 #include "recogniser/features.h"
@@ -72,9 +74,10 @@ struct ViewRenderOptions {
 // outside [min_plausible_diagonal, max_plausible_diagonal] is scaled uniformly (about the
 // file's origin) to `target_diagonal`; other meshes keep their file's units as metres.
 struct SizeNormalisationOptions {
-  double min_plausible_diagonal = 0.02;  // metres
-  double max_plausible_diagonal = 0.75;  // metres
-  double target_diagonal = 0.25;         // metres
+  // Defaults: the one plausibility rule (core/object_size.h).
+  double min_plausible_diagonal = kMinPlausibleDiagonal;  // metres
+  double max_plausible_diagonal = kMaxPlausibleDiagonal;  // metres
+  double target_diagonal = kDefaultObjectDiagonal;        // metres
   void Check() const;
 };
 
@@ -105,6 +108,8 @@ struct DatabaseOptions {
   // Our configuration (default) and the thesis's (18 viewpoints, thesis features, MLH
   // codes): "sope" | "thesis". Throws sope::Error naming an unknown preset.
   static DatabaseOptions Preset(const std::string& name);
+  // Every field, named as in the database file's JSON ("hash.bits", …; core/options.h).
+  static const std::vector<OptionField<DatabaseOptions>>& Fields();
   // Throws sope::Error naming the first invalid value (checks every nested options).
   void Check() const;
 };

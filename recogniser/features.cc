@@ -162,6 +162,74 @@ double ThirdMoment(const std::vector<Eigen::Vector3f>& points, const Eigen::Vect
   return sum;
 }
 
+// DᵀD of the second differences of an (m+1) × (n+1) control net along u and along v.
+Eigen::MatrixXd SmoothnessMatrix(int m, int n) {
+  const int num_control = (m + 1) * (n + 1);
+  Eigen::MatrixXd smooth = Eigen::MatrixXd::Zero(num_control, num_control);
+  auto add_difference = [&](int c0, int c1, int c2) {
+    const int idx[3] = {c0, c1, c2};
+    const double w[3] = {1.0, -2.0, 1.0};
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) smooth(idx[r], idx[c]) += w[r] * w[c];
+    }
+  };
+  for (int j = 0; j <= n; ++j) {
+    for (int i = 1; i < m; ++i)
+      add_difference((i - 1) * (n + 1) + j, i * (n + 1) + j, (i + 1) * (n + 1) + j);
+  }
+  for (int i = 0; i <= m; ++i) {
+    for (int j = 1; j < n; ++j)
+      add_difference(i * (n + 1) + j - 1, i * (n + 1) + j, i * (n + 1) + j + 1);
+  }
+  return smooth;
+}
+
+// Foot point of `p` on the patch (row-major control points, orders m × n): one
+// Gauss–Newton step from (*u, *v), clamped to the unit square, kept only when it brings
+// the surface point closer. Returns the squared distance at the kept foot point and its
+// Bernstein values in bu, bv.
+double FootPointStep(const double* control, int m, int n, const double p[3], double* u,
+                     double* v, double* bu, double* bv) {
+  double dbu[kMaxBezierOrder + 1], dbv[kMaxBezierOrder + 1];
+  double bu_new[kMaxBezierOrder + 1], bv_new[kMaxBezierOrder + 1];
+  const double px = p[0], py = p[1], pz = p[2];
+  Bernstein(m, *u, bu, dbu);
+  Bernstein(n, *v, bv, dbv);
+  double s[3], su[3], sv[3];
+  EvaluatePatch(control, m, n, bu, bv, dbu, dbv, s, su, sv);
+  const double r[3] = {s[0] - px, s[1] - py, s[2] - pz};
+  const double r_sq = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+  // (JᵀJ) δ = −Jᵀr with J = [S_u S_v], solved in closed form (2×2), lightly damped.
+  const double uu = su[0] * su[0] + su[1] * su[1] + su[2] * su[2];
+  const double vv = sv[0] * sv[0] + sv[1] * sv[1] + sv[2] * sv[2];
+  const double uv = su[0] * sv[0] + su[1] * sv[1] + su[2] * sv[2];
+  const double g0 = su[0] * r[0] + su[1] * r[1] + su[2] * r[2];
+  const double g1 = sv[0] * r[0] + sv[1] * r[1] + sv[2] * r[2];
+  const double damping = 1e-12 * (uu + vv) + 1e-300;
+  const double h00 = uu + damping, h11 = vv + damping;
+  const double det = h00 * h11 - uv * uv;
+  const double du = det > 0.0 ? -(h11 * g0 - uv * g1) / det : 0.0;
+  const double dv = det > 0.0 ? -(h00 * g1 - uv * g0) / det : 0.0;
+  if (det > 0.0 && std::isfinite(du) && std::isfinite(dv)) {
+    const double u_new = std::clamp(*u + du, 0.0, 1.0);
+    const double v_new = std::clamp(*v + dv, 0.0, 1.0);
+    Bernstein(m, u_new, bu_new, nullptr);
+    Bernstein(n, v_new, bv_new, nullptr);
+    double t[3];
+    EvaluatePatch(control, m, n, bu_new, bv_new, t);
+    const double t_sq =
+        (t[0] - px) * (t[0] - px) + (t[1] - py) * (t[1] - py) + (t[2] - pz) * (t[2] - pz);
+    if (t_sq <= r_sq) {
+      *u = u_new;
+      *v = v_new;
+      std::copy(bu_new, bu_new + m + 1, bu);
+      std::copy(bv_new, bv_new + n + 1, bv);
+      return t_sq;
+    }
+  }
+  return r_sq;
+}
+
 BezierPatch FitBezierPatchImpl(const std::vector<Eigen::Vector3f>& points, int order_u, int order_v,
                                int iterations, const Eigen::Vector3f* viewpoint, double smoothing) {
   SOPE_CHECK(
@@ -218,26 +286,11 @@ BezierPatch FitBezierPatchImpl(const std::vector<Eigen::Vector3f>& points, int o
   Eigen::VectorXd u = ((a.array() - a_min) / a_range).matrix();
   Eigen::VectorXd v = ((b.array() - b_min) / b_range).matrix();
 
-  // Smoothness term DᵀD: second differences of the control net along u and along v.
-  Eigen::MatrixXd smooth = Eigen::MatrixXd::Zero(num_control, num_control);
-  auto add_difference = [&](int c0, int c1, int c2) {
-    const int idx[3] = {c0, c1, c2};
-    const double w[3] = {1.0, -2.0, 1.0};
-    for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c) smooth(idx[r], idx[c]) += w[r] * w[c];
-    }
-  };
-  for (int j = 0; j <= n; ++j) {
-    for (int i = 1; i < m; ++i)
-      add_difference((i - 1) * (n + 1) + j, i * (n + 1) + j, (i + 1) * (n + 1) + j);
-  }
-  for (int i = 0; i <= m; ++i) {
-    for (int j = 1; j < n; ++j)
-      add_difference(i * (n + 1) + j - 1, i * (n + 1) + j, i * (n + 1) + j + 1);
-  }
-  // Per point and per control point, so the balance with the data term does not depend on
+  // Smoothness term DᵀD (second differences of the control net along u and along v), per
+  // point and per control point, so the balance with the data term does not depend on
   // the number of points or the order.
-  smooth *= smoothing * static_cast<double>(count) / num_control;
+  const Eigen::MatrixXd smooth =
+      SmoothnessMatrix(m, n) * (smoothing * static_cast<double>(count) / num_control);
 
   // Row-major copy of the control points for the evaluator.
   std::vector<double> control_flat(3 * num_control);
@@ -256,8 +309,6 @@ BezierPatch FitBezierPatchImpl(const std::vector<Eigen::Vector3f>& points, int o
     }
   };
   double bu[kMaxBezierOrder + 1], bv[kMaxBezierOrder + 1];
-  double dbu[kMaxBezierOrder + 1], dbv[kMaxBezierOrder + 1];
-  double bu_new[kMaxBezierOrder + 1], bv_new[kMaxBezierOrder + 1];
   double sum_sq = 0.0;  // Σ‖p(u_k, v_k) − p_k‖² at the current foot points
   for (size_t k = 0; k < count; ++k) {
     Bernstein(m, u[k], bu, nullptr);
@@ -286,46 +337,9 @@ BezierPatch FitBezierPatchImpl(const std::vector<Eigen::Vector3f>& points, int o
     // the unit square, kept only when it brings the surface point closer.
     sum_sq = 0.0;
     for (size_t k = 0; k < count; ++k) {
-      const double px = target(k, 0), py = target(k, 1), pz = target(k, 2);
-      Bernstein(m, u[k], bu, dbu);
-      Bernstein(n, v[k], bv, dbv);
-      double s[3], su[3], sv[3];
-      EvaluatePatch(control_flat.data(), m, n, bu, bv, dbu, dbv, s, su, sv);
-      const double r[3] = {s[0] - px, s[1] - py, s[2] - pz};
-      const double r_sq = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-      // (JᵀJ) δ = −Jᵀr with J = [S_u S_v], solved in closed form (2×2), lightly damped.
-      const double uu = su[0] * su[0] + su[1] * su[1] + su[2] * su[2];
-      const double vv = sv[0] * sv[0] + sv[1] * sv[1] + sv[2] * sv[2];
-      const double uv = su[0] * sv[0] + su[1] * sv[1] + su[2] * sv[2];
-      const double g0 = su[0] * r[0] + su[1] * r[1] + su[2] * r[2];
-      const double g1 = sv[0] * r[0] + sv[1] * r[1] + sv[2] * r[2];
-      const double damping = 1e-12 * (uu + vv) + 1e-300;
-      const double h00 = uu + damping, h11 = vv + damping;
-      const double det = h00 * h11 - uv * uv;
-      const double du = det > 0.0 ? -(h11 * g0 - uv * g1) / det : 0.0;
-      const double dv = det > 0.0 ? -(h00 * g1 - uv * g0) / det : 0.0;
-      bool accepted = false;
-      if (det > 0.0 && std::isfinite(du) && std::isfinite(dv)) {
-        const double u_new = std::clamp(u[k] + du, 0.0, 1.0);
-        const double v_new = std::clamp(v[k] + dv, 0.0, 1.0);
-        Bernstein(m, u_new, bu_new, nullptr);
-        Bernstein(n, v_new, bv_new, nullptr);
-        double t[3];
-        EvaluatePatch(control_flat.data(), m, n, bu_new, bv_new, t);
-        const double t_sq =
-            (t[0] - px) * (t[0] - px) + (t[1] - py) * (t[1] - py) + (t[2] - pz) * (t[2] - pz);
-        if (t_sq <= r_sq) {
-          u[k] = u_new;
-          v[k] = v_new;
-          set_basis_row(k, bu_new, bv_new);
-          sum_sq += t_sq;
-          accepted = true;
-        }
-      }
-      if (!accepted) {
-        set_basis_row(k, bu, bv);
-        sum_sq += r_sq;
-      }
+      const double p[3] = {target(k, 0), target(k, 1), target(k, 2)};
+      sum_sq += FootPointStep(control_flat.data(), m, n, p, &u[k], &v[k], bu, bv);
+      set_basis_row(k, bu, bv);
     }
   }
 
@@ -485,23 +499,10 @@ Eigen::VectorXf FineHistogram(const PreprocessedCloud& view, FineDescriptor desc
 // ---------------------------------------------------------------------------------------
 // Enums and options
 
-std::string ToString(FineDescriptor descriptor) {
-  switch (descriptor) {
-    case FineDescriptor::kVfh:
-      return "vfh";
-    case FineDescriptor::kCvfh:
-      return "cvfh";
-    case FineDescriptor::kOurCvfh:
-      return "ourcvfh";
-  }
-  return "unknown";
-}
+std::string ToString(FineDescriptor descriptor) { return EnumToString(descriptor); }
 
 FineDescriptor FineDescriptorFromString(const std::string& text) {
-  for (FineDescriptor d : {FineDescriptor::kVfh, FineDescriptor::kCvfh, FineDescriptor::kOurCvfh}) {
-    if (text == ToString(d)) return d;
-  }
-  SOPE_THROW("unknown fine descriptor '{}' (expected vfh, cvfh or ourcvfh)", text);
+  return EnumFromString<FineDescriptor>(text);
 }
 
 void FeatureOptions::Check() const {
@@ -673,6 +674,98 @@ Eigen::Vector3f EvaluateBezier(const BezierPatch& patch, float u, float v) {
 // ---------------------------------------------------------------------------------------
 // Features of a view
 
+namespace {
+
+// The Bézier patch block (thesis §4.3.2): control points in the patch's own right-handed
+// frame (e1, e2, e1 × e2 — roll-invariant), then the spanning vectors.
+void AppendPatchBlock(const PreprocessedCloud& view, const FeatureOptions& options,
+                      std::vector<float>* coarse) {
+  const PointCloud& normalised = view.normalised;
+  const size_t n = normalised.size();
+  const int m = options.bezier_order_u, n_order = options.bezier_order_v;
+  std::vector<Eigen::Vector3f> subsample;
+  const std::vector<Eigen::Vector3f>* fit_points = &normalised.points;
+  if (n > kBezierMaxPoints) {
+    subsample.reserve(kBezierMaxPoints);
+    for (size_t k = 0; k < kBezierMaxPoints; ++k) {
+      subsample.push_back(normalised.points[(k * n) / kBezierMaxPoints]);
+    }
+    fit_points = &subsample;
+  }
+  const Eigen::Vector3f sensor = -view.centroid / view.radius;  // normalised frame
+  const BezierPatch patch = FitBezierPatch(*fit_points, m, n_order, options.bezier_iterations,
+                                           sensor, options.bezier_smoothing);
+  Eigen::Matrix3f frame;
+  frame.col(0) = patch.axis_u;
+  frame.col(1) = patch.axis_v;
+  frame.col(2) = patch.axis_u.cross(patch.axis_v);
+  const int num_control = static_cast<int>(patch.control.size());
+  std::vector<Eigen::Vector3f> local(num_control);
+  for (int c = 0; c < num_control; ++c)
+    local[c] = frame.transpose() * (patch.control[c] - patch.origin);
+  // The sign of e1 (and with it e2) is fixed by the skewness along e1, which is ill-defined
+  // for nearly symmetric views; the opposite choice gives the net turned by 180° about
+  // e1 × e2: k_ij → k_(m−i)(n−j), (a, b, h) → (−a, −b, h). Split the net into the parts
+  // symmetric and antisymmetric under that turn and weight the antisymmetric part by
+  // tanh(skewness / 0.1): the block is then continuous where the sign choice flips.
+  double m2 = 0.0, m3 = 0.0;
+  for (const Eigen::Vector3f& p : *fit_points) {
+    const double t = (p - patch.origin).dot(patch.axis_u);
+    m2 += t * t;
+    m3 += t * t * t;
+  }
+  const double count = static_cast<double>(fit_points->size());
+  m2 /= count;
+  m3 /= count;
+  const double skewness = m2 > 0.0 ? m3 / std::pow(m2, 1.5) : 0.0;
+  const float weight = static_cast<float>(std::tanh(std::abs(skewness) / kSkewnessScale));
+  for (int i = 0; i <= m; ++i) {
+    for (int j = 0; j <= n_order; ++j) {
+      const Eigen::Vector3f& k = local[i * (n_order + 1) + j];
+      const Eigen::Vector3f& o = local[(m - i) * (n_order + 1) + (n_order - j)];
+      const Eigen::Vector3f turned(-o.x(), -o.y(), o.z());
+      const Eigen::Vector3f value = 0.5f * (k + turned) + weight * 0.5f * (k - turned);
+      coarse->insert(coarse->end(), value.data(), value.data() + 3);
+    }
+  }
+  // Spanning vectors in camera axes: with direction_components_xyz as the thesis has them
+  // (signs as chosen above); otherwise only |z| of each — roll-invariant, and invariant to
+  // the sign ambiguity of a principal axis.
+  if (options.direction_components_xyz) {
+    coarse->insert(coarse->end(), patch.axis_u.data(), patch.axis_u.data() + 3);
+    coarse->insert(coarse->end(), patch.axis_v.data(), patch.axis_v.data() + 3);
+  } else {
+    coarse->push_back(std::abs(patch.axis_u.z()));
+    coarse->push_back(std::abs(patch.axis_v.z()));
+  }
+}
+
+// The metric size block (sope): log radius, then the robust extents along the principal
+// axes, metres.
+void AppendMetricSizeBlock(const PreprocessedCloud& view, std::vector<float>* coarse) {
+  const PointCloud& normalised = view.normalised;
+  const size_t n = normalised.size();
+  Eigen::Vector3d centroid, variances;
+  Eigen::Matrix3d axes;
+  PrincipalAxes(normalised.points, &centroid, &axes, &variances);
+  float extents[3];
+  std::vector<float> projection(n);
+  for (int a = 0; a < 3; ++a) {
+    for (size_t i = 0; i < n; ++i) {
+      projection[i] =
+          static_cast<float>((normalised.points[i].cast<double>() - centroid).dot(axes.col(a)));
+    }
+    const float low = Quantile(&projection, kExtentQuantile);
+    const float high = Quantile(&projection, 1.0 - kExtentQuantile);
+    extents[a] = (high - low) * view.radius;
+  }
+  std::sort(extents, extents + 3, std::greater<float>());
+  coarse->push_back(std::log(view.radius));
+  coarse->insert(coarse->end(), extents, extents + 3);
+}
+
+}  // namespace
+
 ViewFeatures ComputeFeatures(const PreprocessedCloud& view, const FeatureOptions& options) {
   options.Check();
   const PointCloud& normalised = view.normalised;
@@ -721,87 +814,9 @@ ViewFeatures ComputeFeatures(const PreprocessedCloud& view, const FeatureOptions
     append_kde(*values, block);
   }
 
-  // Bézier patch (thesis §4.3.2): control points in the patch's own right-handed frame
-  // (e1, e2, e1 × e2 — roll-invariant), then the spanning vectors.
-  if (HasPatch(options)) {
-    const int m = options.bezier_order_u, n_order = options.bezier_order_v;
-    std::vector<Eigen::Vector3f> subsample;
-    const std::vector<Eigen::Vector3f>* fit_points = &normalised.points;
-    if (n > kBezierMaxPoints) {
-      subsample.reserve(kBezierMaxPoints);
-      for (size_t k = 0; k < kBezierMaxPoints; ++k) {
-        subsample.push_back(normalised.points[(k * n) / kBezierMaxPoints]);
-      }
-      fit_points = &subsample;
-    }
-    const Eigen::Vector3f sensor = -view.centroid / view.radius;  // normalised frame
-    const BezierPatch patch = FitBezierPatch(*fit_points, m, n_order, options.bezier_iterations,
-                                             sensor, options.bezier_smoothing);
-    Eigen::Matrix3f frame;
-    frame.col(0) = patch.axis_u;
-    frame.col(1) = patch.axis_v;
-    frame.col(2) = patch.axis_u.cross(patch.axis_v);
-    const int num_control = static_cast<int>(patch.control.size());
-    std::vector<Eigen::Vector3f> local(num_control);
-    for (int c = 0; c < num_control; ++c)
-      local[c] = frame.transpose() * (patch.control[c] - patch.origin);
-    // The sign of e1 (and with it e2) is fixed by the skewness along e1, which is ill-defined
-    // for nearly symmetric views; the opposite choice gives the net turned by 180° about
-    // e1 × e2: k_ij → k_(m−i)(n−j), (a, b, h) → (−a, −b, h). Split the net into the parts
-    // symmetric and antisymmetric under that turn and weight the antisymmetric part by
-    // tanh(skewness / 0.1): the block is then continuous where the sign choice flips.
-    double m2 = 0.0, m3 = 0.0;
-    for (const Eigen::Vector3f& p : *fit_points) {
-      const double t = (p - patch.origin).dot(patch.axis_u);
-      m2 += t * t;
-      m3 += t * t * t;
-    }
-    const double count = static_cast<double>(fit_points->size());
-    m2 /= count;
-    m3 /= count;
-    const double skewness = m2 > 0.0 ? m3 / std::pow(m2, 1.5) : 0.0;
-    const float weight = static_cast<float>(std::tanh(std::abs(skewness) / kSkewnessScale));
-    for (int i = 0; i <= m; ++i) {
-      for (int j = 0; j <= n_order; ++j) {
-        const Eigen::Vector3f& k = local[i * (n_order + 1) + j];
-        const Eigen::Vector3f& o = local[(m - i) * (n_order + 1) + (n_order - j)];
-        const Eigen::Vector3f turned(-o.x(), -o.y(), o.z());
-        const Eigen::Vector3f value = 0.5f * (k + turned) + weight * 0.5f * (k - turned);
-        coarse.insert(coarse.end(), value.data(), value.data() + 3);
-      }
-    }
-    // Spanning vectors in camera axes: with direction_components_xyz as the thesis has them
-    // (signs as chosen above); otherwise only |z| of each — roll-invariant, and invariant to
-    // the sign ambiguity of a principal axis.
-    if (options.direction_components_xyz) {
-      coarse.insert(coarse.end(), patch.axis_u.data(), patch.axis_u.data() + 3);
-      coarse.insert(coarse.end(), patch.axis_v.data(), patch.axis_v.data() + 3);
-    } else {
-      coarse.push_back(std::abs(patch.axis_u.z()));
-      coarse.push_back(std::abs(patch.axis_v.z()));
-    }
-  }
-
-  // Metric size (sope): log radius, then the robust extents along the principal axes.
-  if (options.metric_size) {
-    Eigen::Vector3d centroid, variances;
-    Eigen::Matrix3d axes;
-    PrincipalAxes(normalised.points, &centroid, &axes, &variances);
-    float extents[3];
-    std::vector<float> projection(n);
-    for (int a = 0; a < 3; ++a) {
-      for (size_t i = 0; i < n; ++i) {
-        projection[i] =
-            static_cast<float>((normalised.points[i].cast<double>() - centroid).dot(axes.col(a)));
-      }
-      const float low = Quantile(&projection, kExtentQuantile);
-      const float high = Quantile(&projection, 1.0 - kExtentQuantile);
-      extents[a] = (high - low) * view.radius;
-    }
-    std::sort(extents, extents + 3, std::greater<float>());
-    coarse.push_back(std::log(view.radius));
-    coarse.insert(coarse.end(), extents, extents + 3);
-  }
+  // Bézier patch (thesis §4.3.2) and metric size (sope).
+  if (HasPatch(options)) AppendPatchBlock(view, options, &coarse);
+  if (options.metric_size) AppendMetricSizeBlock(view, &coarse);
 
   ViewFeatures features;
   features.coarse =

@@ -17,6 +17,7 @@
 
 #include <Eigen/Core>
 
+#include "core/enum_strings.h"
 #include "recogniser/preprocess.h"
 
 namespace sope {
@@ -24,6 +25,13 @@ namespace sope {
 enum class FineDescriptor { kVfh, kCvfh, kOurCvfh };
 // Default weight of the control-net smoothness penalty of the Bézier patch fit.
 constexpr double kDefaultBezierSmoothing = 0.1;
+template <>
+struct EnumTable<FineDescriptor> {
+  static constexpr const char* kWhat = "fine descriptor";
+  static constexpr EnumName<FineDescriptor> kNames[] = {{FineDescriptor::kVfh, "vfh"},
+                                                       {FineDescriptor::kCvfh, "cvfh"},
+                                                       {FineDescriptor::kOurCvfh, "ourcvfh"}};
+};
 std::string ToString(FineDescriptor descriptor);
 FineDescriptor FineDescriptorFromString(const std::string& text);  // vfh|cvfh|ourcvfh
 

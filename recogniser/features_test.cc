@@ -25,6 +25,7 @@
 #include "core/camera_model.h"
 #include "core/error.h"
 #include "core/rigid3d.h"
+#include "core/units.h"
 #include "recogniser/preprocess.h"
 #include "simulator/primitives.h"
 #include "simulator/procedural_objects.h"
@@ -37,7 +38,6 @@ namespace {
 using Eigen::Vector3d;
 using Eigen::Vector3f;
 
-constexpr double kPi = 3.14159265358979323846;
 
 #define EXPECT_ERROR_WITH(statement, fragment)                         \
   do {                                                                 \

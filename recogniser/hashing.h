@@ -3,7 +3,9 @@
 // distance between codes approximates the Euclidean distance between features, and the
 // whole database can be scanned with XOR + popcount (recogniser/hamming_search.h).
 //
-// Five hashers, all trained here in C++ on the database features:
+// Five hashers, all trained here in C++ on the database features, one class per method
+// behind recogniser/hash_function.h (hash_lsh.cc, hash_spectral.cc, hash_mlh.cc,
+// hash_bre.cc, hash_itq.cc); Hasher below is the value type the database holds:
 //  - LSH: Gaussian random projections of mean-centred features, thresholded at zero
 //    (Charikar 2002) or, optionally, at random thresholds (Andoni & Indyk 2008) — the
 //    data-independent baseline;
@@ -15,15 +17,18 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include <Eigen/Core>
 
+#include "core/enum_strings.h"
+
 namespace sope {
 
 namespace internal {
-struct HasherAccess;  // the trainers, in hashing.cc
+class HashFunction;  // one class per method (recogniser/hash_function.h)
 }  // namespace internal
 
 // A set of equal-length bit strings packed into 64-bit words, one code after the other
@@ -72,6 +77,15 @@ enum class HashMethod {
   kBinaryReconstructive,  // "bre"
   kItq,                   // "itq"
 };
+template <>
+struct EnumTable<HashMethod> {
+  static constexpr const char* kWhat = "hash method";
+  static constexpr EnumName<HashMethod> kNames[] = {{HashMethod::kLsh, "lsh"},
+                                                   {HashMethod::kSpectral, "sh"},
+                                                   {HashMethod::kMinimalLoss, "mlh"},
+                                                   {HashMethod::kBinaryReconstructive, "bre"},
+                                                   {HashMethod::kItq, "itq"}};
+};
 std::string ToString(HashMethod method);
 // Accepts the short names above; throws sope::Error naming the text otherwise.
 HashMethod HashMethodFromString(const std::string& text);
@@ -80,6 +94,12 @@ HashMethod HashMethodFromString(const std::string& text);
 enum class BreKernel {
   kLinear,    // "linear": κ(a, x) = aᵀx on unit-normalised, mean-centred features
   kGaussian,  // "gaussian": κ(a, x) = exp(−‖a − x‖² / (2σ²))
+};
+template <>
+struct EnumTable<BreKernel> {
+  static constexpr const char* kWhat = "BRE kernel";
+  static constexpr EnumName<BreKernel> kNames[] = {{BreKernel::kLinear, "linear"},
+                                                  {BreKernel::kGaussian, "gaussian"}};
 };
 std::string ToString(BreKernel kernel);
 BreKernel BreKernelFromString(const std::string& text);
@@ -244,8 +264,6 @@ class Hasher {
   int input_dims() const { return static_cast<int>(mean_.size()); }
 
  private:
-  friend struct internal::HasherAccess;
-
   // Real-valued activations, rows × bits; bit = activation > 0.
   Eigen::MatrixXf Activations(const Eigen::MatrixXf& features) const;
 
@@ -253,23 +271,8 @@ class Hasher {
   int bits_ = 0;
   // Training mean μ, input_dims.
   Eigen::VectorXf mean_;
-  // LSH, MLH, ITQ: bit k = [projection_.row(k)·(x − μ) + offset_(k) > 0] (bits × dims).
-  // SH: projection_ holds the PCA directions (npca × dims) and offset_ is unused.
-  // BRE: projection_ is W (bits × anchors).
-  Eigen::MatrixXf projection_;
-  Eigen::VectorXf offset_;
-  // SH: per bit, the PCA direction, the angular frequency ω = kπ/(b − a) (1/feature
-  // units) and the direction's lower range end a; bit = [cos(ω (y_dir − a)) > 0], i.e.
-  // sin(π/2 + ω(y − a)) > 0 (eq. 4.12).
-  std::vector<int32_t> sh_direction_;
-  Eigen::VectorXf sh_omega_;
-  Eigen::VectorXf sh_range_min_;
-  // BRE: anchors (anchors × dims, unit-normalised centred features), their mean kernel
-  // value on the training rows, and the Gaussian width σ.
-  BreKernel bre_kernel_ = BreKernel::kGaussian;
-  Eigen::MatrixXf bre_anchors_;
-  Eigen::VectorXf bre_kernel_mean_;
-  float bre_bandwidth_ = 1.0f;
+  // The method's function of x − μ (immutable once trained, so copies share it).
+  std::shared_ptr<const internal::HashFunction> function_;
 };
 
 namespace internal {

@@ -12,11 +12,11 @@
 #include <Eigen/Geometry>
 
 #include "core/error.h"
+#include "core/units.h"
 
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 // Grids larger than this many cells get coarser cells (a query spanning the whole image).
 constexpr int64_t kMaxGridCells = 1 << 22;
 
@@ -48,34 +48,70 @@ Eigen::Matrix3d CamFromCanonical(const Eigen::Vector3d& direction) {
       .toRotationMatrix();
 }
 
+const std::vector<OptionField<PoseOptions>>& PoseOptions::Fields() {
+  using O = PoseOptions;
+  static const std::vector<OptionField<O>> fields = {
+      Field(&O::angle_bins, "angle_bins", "Polar signature angle bins").In(8, 720),
+      Field(&O::roll_hypotheses, "roll_hypotheses", "Roll hypotheses per view (≤ angle_bins/2)")
+          .AtLeast(1),
+      Field(&O::max_iterations, "max_iterations", "ICP iterations").AtLeast(0),
+      Field(&O::initial_gate_fraction, "initial_gate_fraction",
+            "Initial correspondence gate, fraction of the query radius")
+          .AtLeast(0.0),
+      Field(&O::final_gate, "final_gate", "Final correspondence gate").Unit("m").Above(0.0),
+      Field(&O::gate_iterations, "gate_iterations", "Iterations to shrink the gate").AtLeast(1),
+      Field(&O::initial_window, "initial_window", "Initial projective search window, cells")
+          .AtLeast(0),
+      Field(&O::final_window, "final_window", "Final projective search window, cells")
+          .AtLeast(0),
+      Field(&O::normal_min_cos, "normal_min_cos", "Normal agreement of correspondences, cosine")
+          .In(-1.0, 1.0),
+      Field(&O::point_to_point_weight, "point_to_point_weight",
+            "Weight of the point-to-point term")
+          .AtLeast(0.0),
+      Field(&O::min_rotation_step, "min_rotation_step", "ICP stops below this rotation step")
+          .Unit("rad")
+          .AtLeast(0.0),
+      Field(&O::min_translation_step, "min_translation_step",
+            "ICP stops below this translation step")
+          .Unit("m")
+          .AtLeast(0.0),
+      Field(&O::inlier_distance, "inlier_distance", "Verification inlier distance")
+          .Unit("m")
+          .Above(0.0),
+      Field(&O::coverage_lateral_factor, "coverage_lateral_factor",
+            "Lateral coverage tolerance, view cloud spacings")
+          .Above(0.0),
+      Field(&O::empty_weight, "empty_weight",
+            "Verification: weight of model points with no query point on their ray")
+          .AtLeast(0.0)
+          .Flag("--empty-weight"),
+      Field(&O::violation_weight, "violation_weight", "Verification: free-space violation weight")
+          .AtLeast(0.0),
+      Field(&O::coverage_samples, "coverage_samples", "Query points sampled for coverage")
+          .AtLeast(1),
+      Field(&O::coverage_grazing_cos, "coverage_grazing_cos",
+            "Coverage weight cosine of grazing faces (0: all count fully)")
+          .In(0.0, 1.0)};
+  return fields;
+}
+
 void PoseOptions::Check() const {
-  SOPE_CHECK(angle_bins >= 8 && angle_bins <= 720, "pose: angle_bins must be in [8, 720], got {}",
-             angle_bins);
+  SOPE_CHECK(final_gate > 0.0 && initial_gate_fraction >= 0.0,
+             "pose: final_gate must be > 0 m and initial_gate_fraction ≥ 0, got {} and {}",
+             final_gate, initial_gate_fraction);
+  CheckFields(*this, Fields(), "pose: ");
   for (size_t i = 0; i < ring_edges.size(); ++i) {
     SOPE_CHECK(ring_edges[i] > 0.0f && (i == 0 || ring_edges[i] > ring_edges[i - 1]),
                "pose: ring_edges must be positive and increasing, got ring_edges[{}] = {}", i,
                ring_edges[i]);
   }
-  SOPE_CHECK(roll_hypotheses >= 1 && roll_hypotheses <= angle_bins / 2,
+  SOPE_CHECK(roll_hypotheses <= angle_bins / 2,
              "pose: roll_hypotheses must be in [1, angle_bins/2], got {}", roll_hypotheses);
-  SOPE_CHECK(max_iterations >= 0, "pose: max_iterations must be ≥ 0, got {}", max_iterations);
-  SOPE_CHECK(final_gate > 0.0 && initial_gate_fraction >= 0.0,
-             "pose: final_gate must be > 0 m and initial_gate_fraction ≥ 0, got {} and {}",
-             final_gate, initial_gate_fraction);
-  SOPE_CHECK(gate_iterations >= 1, "pose: gate_iterations must be ≥ 1, got {}", gate_iterations);
-  SOPE_CHECK(final_window >= 0 && initial_window >= final_window,
+  SOPE_CHECK(initial_window >= final_window,
              "pose: need 0 ≤ final_window ≤ initial_window, got final_window {} and "
              "initial_window {}",
              final_window, initial_window);
-  SOPE_CHECK(coverage_grazing_cos >= 0.0 && coverage_grazing_cos <= 1.0,
-             "pose: coverage_grazing_cos must be in [0, 1], got {}", coverage_grazing_cos);
-  SOPE_CHECK(normal_min_cos >= -1.0 && normal_min_cos <= 1.0,
-             "pose: normal_min_cos must be in [-1, 1], got {}", normal_min_cos);
-  SOPE_CHECK(point_to_point_weight >= 0.0, "pose: point_to_point_weight must be ≥ 0");
-  SOPE_CHECK(inlier_distance > 0.0 && coverage_lateral_factor > 0.0,
-             "pose: inlier_distance and coverage_lateral_factor must be > 0");
-  SOPE_CHECK(empty_weight >= 0.0 && violation_weight >= 0.0, "pose: penalty weights must be ≥ 0");
-  SOPE_CHECK(coverage_samples >= 1, "pose: coverage_samples must be ≥ 1");
 }
 
 // ---- ProjectiveGrid ------------------------------------------------------------------------

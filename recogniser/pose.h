@@ -36,6 +36,7 @@
 
 #include <Eigen/Core>
 
+#include "core/options.h"
 #include "core/point_cloud.h"
 #include "core/rigid3d.h"
 
@@ -146,6 +147,8 @@ struct PoseOptions {
   // database view's cloud). 0 counts every point fully.
   double coverage_grazing_cos = 0.2;
 
+  // Every field but ring_edges (core/options.h).
+  static const std::vector<OptionField<PoseOptions>>& Fields();
   void Check() const;
 };
 

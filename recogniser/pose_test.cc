@@ -8,6 +8,7 @@
 
 #include "core/camera_model.h"
 #include "core/error.h"
+#include "core/units.h"
 #include "recogniser/tools/database_builder.h"
 #include "recogniser/view_description.h"
 #include "recogniser/viewpoints.h"
@@ -18,7 +19,6 @@
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;
 
 TEST(CamFromCanonical, TakesTheOpticalAxisToTheDirection) {

@@ -29,21 +29,10 @@ constexpr size_t kMaxVoxelPoints = 100000;
 
 }  // namespace
 
-std::string ToString(ScaleNormalisation mode) {
-  switch (mode) {
-    case ScaleNormalisation::kFarthest:
-      return "farthest";
-    case ScaleNormalisation::kMedian:
-      return "median";
-  }
-  return "unknown";
-}
+std::string ToString(ScaleNormalisation mode) { return EnumToString(mode); }
 
 ScaleNormalisation ScaleNormalisationFromString(const std::string& text) {
-  for (ScaleNormalisation mode : {ScaleNormalisation::kFarthest, ScaleNormalisation::kMedian}) {
-    if (text == ToString(mode)) return mode;
-  }
-  SOPE_THROW("unknown scale normalisation '{}' (expected farthest or median)", text);
+  return EnumFromString<ScaleNormalisation>(text);
 }
 
 void PreprocessOptions::Check() const {

@@ -15,6 +15,7 @@
 
 #include <Eigen/Core>
 
+#include "core/enum_strings.h"
 #include "core/point_cloud.h"
 
 namespace sope {
@@ -23,6 +24,12 @@ enum class ScaleNormalisation {
   kFarthest,  // thesis: the farthest point from the centroid lies on the unit sphere
   kMedian,    // thesis's robust variant: the median distance of the points beyond the
               // `median_fraction` quantile (outliers cannot inflate it)
+};
+template <>
+struct EnumTable<ScaleNormalisation> {
+  static constexpr const char* kWhat = "scale normalisation";
+  static constexpr EnumName<ScaleNormalisation> kNames[] = {
+      {ScaleNormalisation::kFarthest, "farthest"}, {ScaleNormalisation::kMedian, "median"}};
 };
 std::string ToString(ScaleNormalisation mode);
 ScaleNormalisation ScaleNormalisationFromString(const std::string& text);  // farthest|median

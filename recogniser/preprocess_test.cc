@@ -27,6 +27,7 @@
 #include "core/camera_model.h"
 #include "core/error.h"
 #include "core/rigid3d.h"
+#include "core/units.h"
 #include "recogniser/cloud_filters.h"
 #include "recogniser/pcl_convert.h"
 #include "simulator/primitives.h"
@@ -40,7 +41,6 @@ namespace {
 using Eigen::Vector3d;
 using Eigen::Vector3f;
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr float kNan = std::numeric_limits<float>::quiet_NaN();
 
 // Expects `statement` to throw sope::Error whose one-line message contains `fragment`.

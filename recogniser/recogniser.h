@@ -21,7 +21,10 @@
 //     (recogniser/pose.h). This verification is what makes the first suggestion reliable
 //     when several models share a look from some viewpoints. When even the best refined
 //     hypothesis verifies poorly, the search is widened once (more models, views, rolls;
-//     RecognitionOptions::widen_below_score).
+//     WideningOptions::below_score);
+//  6. assembly — re-ranking, grouping, top-k, and "no known object" below
+//     AssemblyOptions::min_score.
+// Each stage is a function of recogniser/stages.h that can be called alone.
 // The result lists the top-k suggestions (one per model by default), each with class,
 // model, viewpoint, scores and the 6-DoF pose cam_from_model.
 #pragma once
@@ -30,6 +33,8 @@
 #include <string>
 #include <vector>
 
+#include "core/enum_strings.h"
+#include "core/options.h"
 #include "core/point_cloud.h"
 #include "core/rigid3d.h"
 #include "recogniser/database.h"
@@ -41,6 +46,12 @@ enum class CoarseSearch {
   kKBest,   // "kbest": the k nearest codes
   kRadius,  // "radius": every code within radius_fraction · bits (thesis)
 };
+template <>
+struct EnumTable<CoarseSearch> {
+  static constexpr const char* kWhat = "coarse search";
+  static constexpr EnumName<CoarseSearch> kNames[] = {{CoarseSearch::kKBest, "kbest"},
+                                                     {CoarseSearch::kRadius, "radius"}};
+};
 std::string ToString(CoarseSearch search);
 CoarseSearch CoarseSearchFromString(const std::string& text);
 
@@ -50,15 +61,23 @@ enum class SuggestionGrouping {
   kView,   // "view": any database entries, as the thesis listed them
   kClass,  // "class": the best model of each class
 };
+template <>
+struct EnumTable<SuggestionGrouping> {
+  static constexpr const char* kWhat = "suggestion grouping";
+  static constexpr EnumName<SuggestionGrouping> kNames[] = {{SuggestionGrouping::kModel, "model"},
+                                                           {SuggestionGrouping::kView, "view"},
+                                                           {SuggestionGrouping::kClass, "class"}};
+};
 std::string ToString(SuggestionGrouping grouping);
 SuggestionGrouping SuggestionGroupingFromString(const std::string& text);
 
-struct RecognitionOptions {
-  // Suggestions returned.
-  int top_k = 4;
+// Options of each stage (recogniser/stages.h). Every field is described once in the
+// struct's Fields() (name, doc, unit, valid range, CLI flag; core/options.h), which drives
+// Check(), the CLI flags of `recognise` / `eval` and JSON.
 
-  // Coarse stage.
-  CoarseSearch coarse_search = CoarseSearch::kKBest;
+// Coarse stage: which database views are flagged by the Hamming distance of their codes.
+struct CoarseOptions {
+  CoarseSearch search = CoarseSearch::kKBest;
   double flag_fraction = 0.03;  // kKBest: fraction of the database flagged …
   int min_flagged = 48;         // … but at least this many views (small databases)
   double radius_fraction = 0.25;  // kRadius: Hamming radius as a fraction of the code length
@@ -66,12 +85,16 @@ struct RecognitionOptions {
   // (e.g. FaissCoarseIndex::KBestSearch over the same codes); (query code words, k) →
   // matches sorted by distance, ties by view index. Empty: the database's own index.
   std::function<std::vector<HammingMatch>(const uint64_t* code, int k)> coarse_kbest;
+  static const std::vector<OptionField<CoarseOptions>>& Fields();
+  void Check() const;
+};
 
-  // Fine stage: ranking distance = Σ weight · distance / DistanceScales. The coarse vector
-  // already holds the metric size block (FeatureOptions::metric_size), so the separate
-  // size term is off by default: on held-out instance queries with occlusion it pushed
-  // the first view of the right model from rank ≤ 1 to rank ≤ 44 at the 95th percentile
-  // (the normalisation radius shrinks when part of the object is hidden).
+// Fine stage: ranking distance = Σ weight · distance / DistanceScales. The coarse vector
+// already holds the metric size block (FeatureOptions::metric_size), so the separate
+// size term is off by default: on held-out instance queries with occlusion it pushed
+// the first view of the right model from rank ≤ 1 to rank ≤ 44 at the 95th percentile
+// (the normalisation radius shrinks when part of the object is hidden).
+struct FineOptions {
   double fine_weight = 1.0;
   double coarse_weight = 1.0;
   double size_weight = 0.0;
@@ -81,50 +104,69 @@ struct RecognitionOptions {
   // mirror-invariant, unlike the histogram descriptors.
   int signature_views = 0;
   double signature_weight = 0.0;
+  static const std::vector<OptionField<FineOptions>>& Fields();
+  void Check() const;  // also: the weights not all 0
+};
 
-  // Pose stage. The first pose_models distinct models of the fine ranking are candidates;
-  // each one's views are ranked with the same distance (all its views when
-  // rank_all_views_of_candidates, else its flagged ones) and up to pose_views_per_model
-  // of them, at least pose_view_separation (radians between viewing directions) apart,
-  // get roll hypotheses and a short ICP of quick_iterations (with fewer candidate models
-  // than pose_models, each gets a proportionally larger share of the pose_models ·
-  // pose_views_per_model views). 0 pose_models skips ICP and verification: suggestions
-  // then carry the unrefined pose (database view, best roll, centroids aligned).
-  int pose_models = 8;
-  int pose_views_per_model = 4;
-  double pose_view_separation = 0.6;
-  bool rank_all_views_of_candidates = false;
+// Pose screening. The first `models` distinct models of the fine ranking are candidates;
+// each one's views are ranked with the same distance (all its views when rank_all_views,
+// else its flagged ones) and up to views_per_model of them, at least view_separation
+// (radians between viewing directions) apart, get roll hypotheses and a short ICP of
+// quick_iterations (with fewer candidate models than `models`, each gets a
+// proportionally larger share of the models · views_per_model views). 0 `models` skips
+// ICP and verification: suggestions then carry the unrefined pose (database view, best
+// roll, centroids aligned).
+struct ScreeningOptions {
+  int models = 8;
+  int views_per_model = 4;
+  double view_separation = 0.6;
+  bool rank_all_views = false;
   int quick_iterations = 5;
   // The short ICP and its score use the first quick_points points of the view cloud
   // (stored in farthest-point order, so any prefix is an even subsample) and
   // quick_coverage_samples query points.
   int quick_points = 64;
   int quick_coverage_samples = 128;
-  // Models whose best hypothesis gets refined: up to refine_passes ICP runs of
-  // refine_iterations, each with the stored view nearest to the current pose (a dense
-  // database has one within a few degrees), starting from a gate of refine_initial_gate
-  // metres; then the full verification with the view nearest to the final pose.
+  static const std::vector<OptionField<ScreeningOptions>>& Fields();
+  void Check() const;
+};
+
+// Refinement: the best hypothesis of up to `candidates` models gets up to `passes` ICP
+// runs of `iterations`, each with the stored view nearest to the current pose (a dense
+// database has one within a few degrees), starting from a gate of initial_gate metres;
+// then the full verification with the view nearest to the final pose.
+struct RefinementOptions {
+  int candidates = 6;
+  int passes = 2;
+  int iterations = 12;
+  double initial_gate = 0.015;
+  static const std::vector<OptionField<RefinementOptions>>& Fields();
+  void Check() const;
+};
+
+// Widened search: when the best verification score after refinement is below
+// below_score (the right model at the right pose scores ≈ 0.9 or more, even with a
+// quarter of it hidden), the hypotheses probably missed it — occlusion corrupts the
+// descriptors (the right model or its right views rank too low) and the polar signature
+// (its centroid shifts), not the verification. The pose search then runs again with the
+// first `models` models by their best view over the whole database (or over
+// restrict_to_models), all views of each ranked, views_per_model views per model and
+// roll_hypotheses rolls per view, and the best hypotheses of refine_candidates models are
+// refined; all refined hypotheses compete in the final order. Costs time only on such
+// queries (instance evaluation: median time unchanged, 95th percentile ≈ 13 → 23 ms).
+// 0 below_score or models, or 0 RefinementOptions::candidates: off.
+struct WideningOptions {
+  double below_score = 0.85;
+  int models = 12;
+  int views_per_model = 8;
+  int roll_hypotheses = 3;
   int refine_candidates = 6;
-  int refine_passes = 2;
-  int refine_iterations = 12;
-  double refine_initial_gate = 0.015;
-  // Widened search: when the best verification score after refinement is below
-  // widen_below_score (the right model at the right pose scores ≈ 0.9 or more, even with
-  // a quarter of it hidden), the hypotheses probably missed it — occlusion corrupts the
-  // descriptors (the right model or its right views rank too low) and the polar signature
-  // (its centroid shifts), not the verification. The pose search then runs again with the
-  // first widen_models models by their best view over the whole database (or over
-  // restrict_to_models), all views of each ranked, widen_views_per_model views per model
-  // and widen_roll_hypotheses rolls per view, and the best hypotheses of
-  // widen_refine_candidates models are refined; all refined hypotheses compete in the
-  // final order. Costs time only on such queries (instance evaluation: median time
-  // unchanged, 95th percentile ≈ 13 → 23 ms). 0 widen_below_score or widen_models, or 0
-  // refine_candidates: off.
-  double widen_below_score = 0.85;
-  int widen_models = 12;
-  int widen_views_per_model = 8;
-  int widen_roll_hypotheses = 3;
-  int widen_refine_candidates = 6;
+  static const std::vector<OptionField<WideningOptions>>& Fields();
+  void Check() const;
+};
+
+// Assembly of the answer.
+struct AssemblyOptions {
   // Final order: by alignment score (verification), ties and unposed suggestions by the
   // ranking distance. false keeps the fine-stage order.
   bool rerank_by_alignment = true;
@@ -132,18 +174,43 @@ struct RecognitionOptions {
   // of the view the pose search started from (descriptor similarity as a tie-breaker
   // between models that fit about equally well).
   double ranking_penalty = 0.0;
-  PoseOptions pose;
+  // "No known object" below this verification score: when the best suggestion was posed
+  // and verified (ScreeningOptions::models > 0) but its alignment score is below
+  // min_score, RecognitionResult::recognised is false (JSON "class": null, the best
+  // guess only among the candidates; CLI "no known object"). Uniform noise and a line of
+  // points score 0.000; the right model at the right pose ≈ 0.9 (see
+  // WideningOptions); on the instance evaluation (190 queries, up to 25% hidden) the
+  // lowest-scoring correct first answer scored 0.71. Unseen instances of known classes
+  // score lower: on a small class-protocol run (1 training instance per class, 60 views,
+  // 60 queries) 1 of 36 class-correct answers scored below 0.3 (0.26). 0: every answer
+  // stands.
+  double min_score = 0.3;
+  static const std::vector<OptionField<AssemblyOptions>>& Fields();
+  void Check() const;
+};
 
+struct RecognitionOptions {
+  // Suggestions returned.
+  int top_k = 4;
   SuggestionGrouping grouping = SuggestionGrouping::kModel;
-
   // Pose-only queries (thesis §5, the object known): when not empty, only these database
   // models are considered and all their views are ranked (no coarse search).
   std::vector<int> restrict_to_models;
+
+  CoarseOptions coarse;
+  FineOptions fine;
+  ScreeningOptions screening;
+  RefinementOptions refinement;
+  WideningOptions widening;
+  AssemblyOptions assembly;
+  PoseOptions pose;  // roll hypotheses, ICP and verification (all pose stages)
 
   // The thesis's query: radius search (15% of the code length for MLH/BRE, 25% SH, 50%
   // LSH — pass the method), fine ranking by VFH and the radial distribution only, no pose
   // refinement, database entries listed as they rank.
   static RecognitionOptions ThesisPreset(HashMethod method);
+  // Every field but restrict_to_models, named "coarse.flag_fraction", "pose.empty_weight"…
+  static const std::vector<OptionField<RecognitionOptions>>& Fields();
   // Throws sope::Error naming the first invalid value.
   void Check() const;
 };
@@ -201,6 +268,9 @@ struct RecognitionTimings {
 
 struct RecognitionResult {
   std::vector<Suggestion> suggestions;  // best first, at most top_k
+  // False when the best suggestion's verification score is below
+  // AssemblyOptions::min_score: "no known object", the suggestions are only guesses.
+  bool recognised = false;
   int query_points = 0;                 // after pre-processing
   float query_radius = 0.0f;            // normalisation radius, metres
   int database_views = 0;
@@ -219,7 +289,9 @@ struct RecognitionResult {
 // One JSON object (one line, DESIGN.md "Recognition result"): the best suggestion's
 // class, model, score, view (degrees), pose (cam_from_model: rotation 3×3 row by row,
 // translation metres), refined, timing_ms per stage, flagged and flagged_fraction, and
-// "candidates": every suggestion with the same fields plus its distances.
+// "candidates": every suggestion with the same fields plus its distances; "recognised".
+// Not recognised: "class" and "model" are null, "score" is the best guess's, no
+// view/pose at the top level (the guesses are in "candidates").
 std::string RecognitionResultToJson(const RecognitionResult& result);
 
 class Recogniser {

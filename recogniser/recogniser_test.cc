@@ -15,7 +15,9 @@
 #include "core/camera_model.h"
 #include "core/error.h"
 #include "core/statistics.h"
+#include "core/units.h"
 #include "recogniser/pose_metrics.h"
+#include "recogniser/stages.h"
 #include "recogniser/tools/database_builder.h"
 #include "recogniser/tools/synthetic_queries.h"
 #include "simulator/procedural_objects.h"
@@ -24,7 +26,6 @@
 namespace sope {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / 3.14159265358979323846;
 
 class RecogniserTest : public ::testing::Test {
  protected:
@@ -241,6 +242,166 @@ TEST_F(RecogniserTest, RefusesUnusableClouds) {
   invalid.restrict_to_models = {db_->num_models()};
   EXPECT_THROW_WITH_MESSAGE(recogniser.Recognise(MakeQueries(1, 3)[0].query.cloud, invalid), Error,
                             "restrict_to_models", "model " + std::to_string(db_->num_models()));
+}
+
+
+// The stages called alone, one after another, give what Recognise gives (bit for bit), and
+// each stage's output is what the next one's input should be.
+TEST_F(RecogniserTest, StagesCalledAloneMatchRecognise) {
+  const Recogniser recogniser(*db_);
+  const RecognitionOptions options;
+  for (const Query& q : MakeQueries(4, 31)) {
+    const RecognitionResult result = recogniser.Recognise(q.query.cloud, options);
+    const ViewDescription query = DescribeQuery(*db_, q.query.cloud);
+    EXPECT_EQ(static_cast<int>(query.preprocessed.cloud.size()), result.query_points);
+
+    // Coarse: k-best flags max(min_flagged, ⌈fraction · views⌉) views, nearest codes first.
+    const CoarseResult coarse = CoarseStage(*db_, query, options);
+    const int k = std::min<int>(
+        db_->num_views(),
+        std::max<int>(options.coarse.min_flagged,
+                      static_cast<int>(std::ceil(options.coarse.flag_fraction * db_->num_views()))));
+    ASSERT_EQ(static_cast<int>(coarse.flagged.size()), k);
+    EXPECT_EQ(static_cast<int>(coarse.flagged.size()), result.flagged);
+    StageContext context(*db_, query, coarse);
+    std::vector<uint8_t> is_flagged(db_->num_views(), 0);
+    int max_flagged_distance = 0;
+    for (const HammingMatch& m : coarse.flagged) {
+      EXPECT_EQ(m.hamming_distance, context.HammingTo(m.index));
+      is_flagged[m.index] = 1;
+      max_flagged_distance = std::max(max_flagged_distance, m.hamming_distance);
+    }
+    for (int v = 0; v < db_->num_views(); ++v) {
+      if (!is_flagged[v]) EXPECT_GE(context.HammingTo(v), max_flagged_distance) << v;
+    }
+
+    // Fine: the flagged views, sorted by their combined distance, ranks in order.
+    const FineResult fine = FineStage(&context, options);
+    ASSERT_EQ(fine.ranked.size(), coarse.flagged.size());
+    for (size_t i = 0; i < fine.ranked.size(); ++i) {
+      EXPECT_EQ(fine.ranked[i].fine_rank, static_cast<int>(i));
+      EXPECT_TRUE(is_flagged[fine.ranked[i].view]);
+      const RankedView measured =
+          context.Measure(fine.ranked[i].view, fine.ranked[i].hamming, options.fine);
+      EXPECT_EQ(measured.combined, fine.ranked[i].combined);
+      if (i > 0) EXPECT_FALSE(RankedBefore(fine.ranked[i], fine.ranked[i - 1]));
+    }
+
+    // Screening: hypotheses of the planned models only, best score first.
+    const ScreeningRequest plan = PlanScreening(context, fine, options);
+    EXPECT_LE(static_cast<int>(plan.models.size()), options.screening.models);
+    const std::vector<PoseCandidate> screened = ScreenPoses(&context, fine, plan, options);
+    ASSERT_FALSE(screened.empty());
+    for (size_t i = 0; i < screened.size(); ++i) {
+      EXPECT_NE(std::find(plan.models.begin(), plan.models.end(), screened[i].model),
+                plan.models.end());
+      EXPECT_FALSE(screened[i].refined);
+      if (i > 0) EXPECT_GE(screened[i - 1].alignment.score, screened[i].alignment.score);
+    }
+    const RefinementResult refined =
+        RefinePoses(&context, screened, options.refinement.candidates, options);
+    double best_refined = 0.0;
+    for (const PoseCandidate& c : refined.candidates) {
+      if (c.refined) best_refined = std::max(best_refined, c.alignment.score);
+    }
+    EXPECT_EQ(refined.best_score, best_refined);
+
+    // The full pose stage and the assembly reproduce Recognise exactly.
+    const std::vector<PoseCandidate> posed = EstimatePoses(&context, fine, options);
+    EXPECT_EQ(static_cast<int>(posed.size()), result.posed);
+    const Assembly answer = AssembleSuggestions(&context, fine, posed, options);
+    EXPECT_EQ(answer.recognised, result.recognised);
+    ASSERT_EQ(answer.suggestions.size(), result.suggestions.size());
+    for (size_t i = 0; i < answer.suggestions.size(); ++i) {
+      const Suggestion& a = answer.suggestions[i];
+      const Suggestion& b = result.suggestions[i];
+      EXPECT_EQ(a.view, b.view);
+      EXPECT_EQ(a.model, b.model);
+      EXPECT_EQ(a.score, b.score);
+      EXPECT_EQ(a.ranking_distance, b.ranking_distance);
+      EXPECT_EQ(a.cam_from_model.rotation, b.cam_from_model.rotation);
+      EXPECT_EQ(a.cam_from_model.translation, b.cam_from_model.translation);
+    }
+  }
+}
+
+// Issue 13: a cloud of no known object (uniform noise, a line of points) is answered "no
+// known object" — JSON class null, the best guess only among the candidates — while real
+// views of the database's objects stay recognised.
+TEST_F(RecogniserTest, NoKnownObjectBelowTheVerificationThreshold) {
+  const Recogniser recogniser(*db_);
+  std::mt19937_64 rng(13);
+  std::uniform_real_distribution<float> unit(-0.15f, 0.15f);
+  PointCloud noise;
+  for (int i = 0; i < 5000; ++i) noise.points.emplace_back(unit(rng), unit(rng), 0.6f + unit(rng));
+  PointCloud line;
+  for (int i = 0; i < 2000; ++i) line.points.emplace_back(-0.1f + 1e-4f * i, 0.0f, 0.6f);
+  for (const PointCloud* cloud : {&noise, &line}) {
+    RecognitionResult result;
+    try {
+      result = recogniser.Recognise(*cloud);
+    } catch (const Error& e) {
+      // Refusing the cloud outright (too few usable points) is also a clear answer.
+      std::printf("refused: %s\n", e.what());
+      continue;
+    }
+    ASSERT_FALSE(result.empty());
+    EXPECT_FALSE(result.recognised) << result.BriefReport();
+    EXPECT_LT(result.best().score, RecognitionOptions().assembly.min_score);
+    const nlohmann::json j = nlohmann::json::parse(RecognitionResultToJson(result));
+    EXPECT_TRUE(j.at("class").is_null());
+    EXPECT_TRUE(j.at("model").is_null());
+    EXPECT_FALSE(j.at("recognised").get<bool>());
+    EXPECT_FALSE(j.contains("pose"));
+    ASSERT_FALSE(j.at("candidates").empty());
+    EXPECT_EQ(j.at("candidates")[0].at("class"), result.best().class_name);
+    EXPECT_EQ(result.BriefReport().rfind("no known object", 0), 0u);
+  }
+  // Real queries: every correct first answer is recognised.
+  int correct = 0;
+  for (const Query& q : MakeQueries(16, 2024)) {
+    const RecognitionResult result = recogniser.Recognise(q.query.cloud);
+    if (result.best().model != q.model) continue;
+    ++correct;
+    EXPECT_TRUE(result.recognised) << result.BriefReport();
+    EXPECT_FALSE(nlohmann::json::parse(RecognitionResultToJson(result)).at("class").is_null());
+  }
+  EXPECT_GE(correct, 12);
+  // 0 turns the threshold off.
+  RecognitionOptions off;
+  off.assembly.min_score = 0.0;
+  EXPECT_TRUE(recogniser.Recognise(noise, off).recognised);
+}
+
+// `f` throws sope::Error whose message contains `what`.
+template <class F>
+void ExpectErrorNaming(F f, const std::string& what) {
+  try {
+    f();
+    ADD_FAILURE() << "no error naming " << what;
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(what), std::string::npos) << e.what();
+  }
+}
+
+// Option fields: the descriptions cover the nested options, and Check() names a value
+// outside a field's range.
+TEST_F(RecogniserTest, OptionFieldsDriveChecks) {
+  const auto& fields = RecognitionOptions::Fields();
+  for (const char* name : {"top_k", "coarse.flag_fraction", "screening.models",
+                           "refinement.initial_gate", "widening.below_score",
+                           "assembly.min_score", "pose.empty_weight"}) {
+    EXPECT_NE(FindField(fields, name), nullptr) << name;
+  }
+  RecognitionOptions options;
+  options.coarse.flag_fraction = 1.5;
+  ExpectErrorNaming([&] { options.Check(); }, "coarse.flag_fraction");
+  options = RecognitionOptions();
+  options.assembly.min_score = std::numeric_limits<double>::quiet_NaN();
+  ExpectErrorNaming([&] { options.Check(); }, "assembly.min_score");
+  options = RecognitionOptions();
+  options.screening.quick_points = 2;
+  ExpectErrorNaming([&] { options.Check(); }, "screening.quick_points");
 }
 
 }  // namespace

@@ -1,19 +1,10 @@
 #include "recogniser/view_description.h"
 
-#include <time.h>
-
-#include <chrono>
-
+#include "core/stopwatch.h"
 #include "recogniser/pose.h"
 
 namespace sope {
 namespace {
-
-double ClockMs(clockid_t clock) {
-  timespec ts{};
-  clock_gettime(clock, &ts);
-  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
-}
 
 void RotateCloud(const Eigen::Matrix3f& rotation, PointCloud* cloud) {
   for (Eigen::Vector3f& p : cloud->points) p = rotation * p;
@@ -21,15 +12,6 @@ void RotateCloud(const Eigen::Matrix3f& rotation, PointCloud* cloud) {
 }
 
 }  // namespace
-
-namespace internal {
-void Stopwatch::Restart() {
-  wall_start_ = ClockMs(CLOCK_MONOTONIC);
-  cpu_start_ = ClockMs(CLOCK_THREAD_CPUTIME_ID);
-}
-double Stopwatch::WallMs() const { return ClockMs(CLOCK_MONOTONIC) - wall_start_; }
-double Stopwatch::CpuMs() const { return ClockMs(CLOCK_THREAD_CPUTIME_ID) - cpu_start_; }
-}  // namespace internal
 
 Eigen::Matrix3d Canonicalise(PreprocessedCloud* cloud) {
   const Eigen::Matrix3d cam_from_canonical = CamFromCanonical(cloud->centroid.cast<double>());
@@ -43,7 +25,7 @@ Eigen::Matrix3d Canonicalise(PreprocessedCloud* cloud) {
 ViewDescription DescribeView(const PointCloud& cloud, const PreprocessOptions& preprocess,
                              const FeatureOptions& features) {
   ViewDescription description;
-  internal::Stopwatch watch;
+  Stopwatch watch;
   description.preprocessed = Preprocess(cloud, preprocess);
   description.cam_from_canonical = Canonicalise(&description.preprocessed);
   description.preprocess_ms = watch.WallMs();

@@ -15,6 +15,7 @@
 #include <Eigen/Core>
 
 #include "core/point_cloud.h"
+#include "core/stopwatch.h"
 #include "recogniser/features.h"
 #include "recogniser/preprocess.h"
 
@@ -34,20 +35,6 @@ struct ViewDescription {
   double preprocess_cpu_ms = 0.0;
   double features_cpu_ms = 0.0;
 };
-
-namespace internal {
-// Wall-clock and calling-thread CPU time since construction (or Restart), milliseconds.
-class Stopwatch {
- public:
-  Stopwatch() { Restart(); }
-  void Restart();
-  double WallMs() const;
-  double CpuMs() const;
-
- private:
-  double wall_start_ = 0.0, cpu_start_ = 0.0;
-};
-}  // namespace internal
 
 // Rotates a pre-processed cloud (points, normals, centroid, normalised points and normals)
 // into its canonical frame; returns cam_from_canonical.

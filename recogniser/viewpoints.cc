@@ -4,31 +4,21 @@
 #include <cmath>
 
 #include "core/error.h"
+#include "core/units.h"
 
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 constexpr double kDeg = kPi / 180.0;
 // Below this sinθ the viewing axis is treated as parallel to the model's z axis.
 constexpr double kPoleSin = 1e-9;
 
 }  // namespace
 
-std::string ToString(ViewpointLayout layout) {
-  switch (layout) {
-    case ViewpointLayout::kThesis18:
-      return "thesis";
-    case ViewpointLayout::kFibonacci:
-      return "fibonacci";
-  }
-  return "unknown";
-}
+std::string ToString(ViewpointLayout layout) { return EnumToString(layout); }
 
 ViewpointLayout ViewpointLayoutFromString(const std::string& text) {
-  if (text == "thesis") return ViewpointLayout::kThesis18;
-  if (text == "fibonacci") return ViewpointLayout::kFibonacci;
-  SOPE_THROW("unknown viewpoint layout '{}' (expected thesis or fibonacci)", text);
+  return EnumFromString<ViewpointLayout>(text);
 }
 
 Eigen::Vector3d Viewpoint::Direction() const {

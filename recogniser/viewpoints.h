@@ -28,6 +28,7 @@
 
 #include <Eigen/Core>
 
+#include "core/enum_strings.h"
 #include "core/rigid3d.h"
 
 namespace sope {
@@ -35,6 +36,12 @@ namespace sope {
 enum class ViewpointLayout {
   kThesis18,   // "thesis": the 18 viewpoints on five declination rings
   kFibonacci,  // "fibonacci": N points of the golden-angle lattice
+};
+template <>
+struct EnumTable<ViewpointLayout> {
+  static constexpr const char* kWhat = "viewpoint layout";
+  static constexpr EnumName<ViewpointLayout> kNames[] = {{ViewpointLayout::kThesis18, "thesis"},
+                                                        {ViewpointLayout::kFibonacci, "fibonacci"}};
 };
 std::string ToString(ViewpointLayout layout);
 // Accepts "thesis" / "fibonacci"; throws sope::Error naming the text otherwise.

@@ -3,11 +3,11 @@
 #include <cmath>
 
 #include "core/error.h"
+#include "core/units.h"
 
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 void AddQuad(TriangleMesh* mesh, int a, int b, int c, int d) {
   mesh->faces.emplace_back(a, b, c);

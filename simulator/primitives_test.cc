@@ -8,12 +8,12 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "core/units.h"
 #include "tests/test_support.h"
 
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 // Directed edge → number of faces using it.
 std::map<std::pair<int, int>, int> DirectedEdges(const TriangleMesh& mesh) {

@@ -13,6 +13,7 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/units.h"
 
 namespace sope {
 namespace {
@@ -20,7 +21,6 @@ namespace {
 using Eigen::Vector2d;
 using Eigen::Vector3d;
 
-constexpr double kPi = 3.14159265358979323846;
 // Spacing of the dense curve samples before simplification, metres.
 constexpr double kDenseStep = 2.5e-4;
 // Profile points closer than this are merged, metres.

@@ -14,6 +14,7 @@
 #include "core/camera_model.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/units.h"
 #include "simulator/scene_builder.h"
 #include "simulator/virtual_rig.h"
 #include "tests/test_support.h"
@@ -24,7 +25,6 @@ namespace {
 using Eigen::Vector2d;
 using Eigen::Vector3d;
 
-constexpr double kPi = 3.14159265358979323846;
 // Instances checked per class in the per-instance property tests.
 constexpr int kSeedsPerClass = 20;
 

@@ -12,6 +12,7 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/units.h"
 #include "projector/patterns.h"
 #include "simulator/osmesa_context.h"
 #include "simulator/primitives.h"
@@ -21,7 +22,6 @@
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 // No noise, no blur, linear response: captured grey levels are the model's linear values.
 SensorOptions LinearNoiselessOptions() {

@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <random>
 #include <sstream>
 
 #include <gtest/gtest.h>
@@ -137,6 +138,35 @@ TEST_F(RecogniseCli, BadCloudsGiveOneErrorLine) {
 
   WriteFileAtomic(local_.File("garbage.ply"), "ply\nformat ascii 1.0\nelement vertex 3\n");
   ExpectOneLineError(Sope(base + local_.File("garbage.ply"), local_), "recognise", "garbage.ply");
+}
+
+// Issue 13: clouds of no known object — uniform noise, a line of points — get "no known
+// object" (text) and "class": null with the best guess only among the candidates (JSON).
+TEST_F(RecogniseCli, NoiseIsNoKnownObject) {
+  ASSERT_EQ(build_->exit_code, 0) << build_->err;
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<float> unit(-0.5f, 0.5f);
+  PointCloud noise, line;
+  for (int i = 0; i < 5000; ++i) noise.points.emplace_back(unit(rng), unit(rng), 1.0f + unit(rng));
+  for (int i = 0; i < 2000; ++i) line.points.emplace_back(-0.2f + 2e-4f * i, 0.0f, 0.6f);
+  WritePointCloud(local_.File("noise.ply"), noise);
+  WritePointCloud(local_.File("line.ply"), line);
+  for (const char* name : {"noise.ply", "line.ply"}) {
+    const std::string base = "recognise --db " + db() + " --cloud " + local_.File(name);
+    SopeRun run = Sope(base, local_);
+    ASSERT_EQ(run.exit_code, 0) << name << ": " << run.err;
+    EXPECT_EQ(run.out.rfind("no known object", 0), 0u) << name << ": " << run.out;
+    run = Sope(base + " --json", local_);
+    ASSERT_EQ(run.exit_code, 0) << name << ": " << run.err;
+    const nlohmann::json j = nlohmann::json::parse(run.out);
+    EXPECT_TRUE(j.at("class").is_null()) << name << ": " << run.out;
+    EXPECT_FALSE(j.at("recognised").get<bool>());
+    EXPECT_FALSE(j.at("candidates").empty());
+    // --min-score 0 restores the old answer (the best guess at the top level).
+    run = Sope(base + " --json --min-score 0", local_);
+    ASSERT_EQ(run.exit_code, 0) << run.err;
+    EXPECT_TRUE(nlohmann::json::parse(run.out).at("class").is_string()) << run.out;
+  }
 }
 
 TEST_F(RecogniseCli, BadDatabasesGiveOneErrorLine) {

@@ -1,0 +1,538 @@
+#include "recogniser/stages.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+#include <utility>
+
+#include "core/error.h"
+
+namespace sope {
+namespace {
+
+// The view of `model_index` whose camera direction (from the model centre) is closest to
+// that of the pose `canonical_from_model` (the canonical frame shares the camera centre).
+int NearestModelView(const Database& db, int model_index, const Rigid3d& canonical_from_model) {
+  const ModelRecord& model = db.model(model_index);
+  const Eigen::Vector3d camera_in_model = canonical_from_model.Inverse().translation;
+  const Eigen::Vector3d direction = (camera_in_model - model.center).normalized();
+  int best = model.first_view;
+  double best_dot = -2.0;
+  for (int v = model.first_view; v < model.first_view + model.num_views; ++v) {
+    const double dot = db.view(v).viewpoint.Direction().dot(direction);
+    if (dot > best_dot) {
+      best_dot = dot;
+      best = v;
+    }
+  }
+  return best;
+}
+
+// The views of one model that get hypotheses: ranked, up to `count` at least
+// `min_separation_cos` apart (neighbouring views would converge to the same pose).
+std::vector<RankedView> SeparatedViews(const Database& db, std::vector<RankedView> views,
+                                       int count, double min_separation_cos) {
+  std::sort(views.begin(), views.end(), RankedBefore);
+  std::vector<RankedView> chosen;
+  std::vector<Eigen::Vector3d> directions;
+  for (const RankedView& r : views) {
+    if (static_cast<int>(directions.size()) >= count) break;
+    const Eigen::Vector3d direction = db.view(r.view).viewpoint.Direction();
+    bool near = false;
+    for (const Eigen::Vector3d& d : directions) near |= d.dot(direction) > min_separation_cos;
+    if (near) continue;
+    directions.push_back(direction);
+    chosen.push_back(r);
+  }
+  return chosen;
+}
+
+// Roll hypotheses of one view and a short ICP from each on a prefix of its cloud; the
+// best-scoring hypothesis, or nothing when the view gave no hypothesis.
+bool ScreenView(StageContext* context, const RankedView& r, int model_index,
+                const PoseOptions& hypothesis_options, const PoseOptions& quick_options,
+                const RecognitionOptions& options, PoseCandidate* out) {
+  const ViewRecord& view = context->db().view(r.view);
+  const PoseQuery& pose_query = context->pose_query(options.pose);
+  const PointCloud& cloud = context->ViewCloud(r.view);
+  const std::vector<PoseHypothesis> hypotheses =
+      InitialPoses(view.cam_from_model, view.centroid_in_model, view.radius, cloud.points,
+                   cloud.normals, pose_query, hypothesis_options);
+  const ScreeningOptions& screening = options.screening;
+  const size_t quick_n = std::min<size_t>(cloud.size(), screening.quick_points);
+  const std::vector<Eigen::Vector3f> quick_points(cloud.points.begin(),
+                                                  cloud.points.begin() + quick_n);
+  const std::vector<Eigen::Vector3f> quick_normals(cloud.normals.begin(),
+                                                   cloud.normals.begin() + quick_n);
+  const float quick_spacing =
+      view.cloud_spacing *
+      std::sqrt(static_cast<float>(cloud.size()) / std::max<size_t>(1, quick_n));
+  PoseCandidate candidate;
+  candidate.ranked = r;
+  candidate.view = r.view;
+  candidate.model = model_index;
+  bool first = true;
+  for (const PoseHypothesis& hypothesis : hypotheses) {
+    const IcpResult icp =
+        RefinePose(quick_points, quick_normals, pose_query, hypothesis.canonical_from_model,
+                   quick_options, screening.quick_iterations);
+    const AlignmentScore alignment =
+        ScoreAlignment(quick_points, quick_normals, quick_spacing, pose_query,
+                       icp.canonical_from_model, options.pose, screening.quick_coverage_samples);
+    if (first || alignment.score > candidate.alignment.score) {
+      candidate.canonical_from_model = icp.canonical_from_model;
+      candidate.roll = hypothesis.roll.roll;
+      candidate.icp = icp;
+      candidate.alignment = alignment;
+      first = false;
+    }
+  }
+  if (first) return false;
+  *out = std::move(candidate);
+  return true;
+}
+
+// Refinement of one candidate (see RefinePoses).
+void RefineCandidate(StageContext* context, const PoseOptions& refine_options,
+                     const RecognitionOptions& options, PoseCandidate* candidate) {
+  const Database& db = context->db();
+  const PoseQuery& pose_query = context->pose_query(options.pose);
+  const RefinementOptions& refinement = options.refinement;
+  const int quick = candidate->icp.iterations;
+  int iterations = 0;
+  for (int pass = 0; pass < refinement.passes; ++pass) {
+    const int nearest = NearestModelView(db, candidate->model, candidate->canonical_from_model);
+    if (pass > 0 && nearest == candidate->view) break;
+    candidate->view = nearest;
+    const PointCloud& cloud = context->ViewCloud(nearest);
+    candidate->icp = RefinePose(cloud.points, cloud.normals, pose_query,
+                                candidate->canonical_from_model, refine_options,
+                                refinement.iterations, refinement.initial_gate);
+    candidate->canonical_from_model = candidate->icp.canonical_from_model;
+    iterations += candidate->icp.iterations;
+  }
+  candidate->icp.iterations = quick + iterations;
+  candidate->view = NearestModelView(db, candidate->model, candidate->canonical_from_model);
+  const PointCloud& cloud = context->ViewCloud(candidate->view);
+  candidate->alignment =
+      ScoreAlignment(cloud.points, cloud.normals, db.view(candidate->view).cloud_spacing,
+                     pose_query, candidate->canonical_from_model, options.pose);
+  candidate->refined = true;
+}
+
+// A suggestion from a ranked view: unposed, the database view's pose moved so that its
+// centroid lies on the query's.
+Suggestion UnposedSuggestion(const StageContext& context, const RankedView& r) {
+  const Database& db = context.db();
+  const ViewRecord& view = db.view(r.view);
+  const ModelRecord& model = db.model(view.model);
+  Suggestion s;
+  s.view = r.view;
+  s.model = view.model;
+  s.class_index = model.class_index;
+  s.model_name = model.name;
+  s.class_name = model.class_name;
+  s.viewpoint = view.viewpoint;
+  s.hamming_distance = r.hamming;
+  s.fine_distance = r.fine;
+  s.coarse_distance = r.coarse;
+  s.size_distance = r.size;
+  s.ranking_distance = r.combined;
+  s.fine_rank = r.fine_rank;
+  const Eigen::Vector3d centroid_in_view_cam =
+      view.cam_from_model * view.centroid_in_model.cast<double>();
+  const Eigen::Matrix3d canonical_from_view_cam =
+      CamFromCanonical(centroid_in_view_cam).transpose();
+  Rigid3d canonical_from_model(canonical_from_view_cam * view.cam_from_model.rotation,
+                               Eigen::Vector3d::Zero());
+  canonical_from_model.translation =
+      Eigen::Vector3d(0, 0, context.query().preprocessed.centroid.norm()) -
+      canonical_from_model.rotation * view.centroid_in_model.cast<double>();
+  s.cam_from_model = context.cam_from_canonical() * canonical_from_model;
+  return s;
+}
+
+Suggestion PosedSuggestion(const StageContext& context, const PoseCandidate& candidate) {
+  Suggestion s = UnposedSuggestion(context, candidate.ranked);
+  s.view = candidate.view;
+  s.viewpoint = context.db().view(candidate.view).viewpoint;
+  s.cam_from_model = context.cam_from_canonical() * candidate.canonical_from_model;
+  s.posed = true;
+  s.refined = candidate.refined;
+  s.converged = candidate.icp.converged;
+  s.roll = candidate.roll;
+  s.icp_iterations = candidate.icp.iterations;
+  s.icp_rms = candidate.icp.rms;
+  s.alignment = candidate.alignment;
+  s.score = candidate.alignment.score;
+  return s;
+}
+
+// All suggestions in their final order, before grouping.
+std::vector<Suggestion> OrderSuggestions(const StageContext& context, const FineResult& fine,
+                                         const std::vector<PoseCandidate>& posed,
+                                         const AssemblyOptions& options) {
+  std::vector<Suggestion> ordered;
+  std::vector<uint8_t> used(fine.ranked.size(), 0);
+  for (const PoseCandidate& candidate : posed) {
+    if (candidate.ranked.fine_rank >= 0) used[candidate.ranked.fine_rank] = 1;
+    ordered.push_back(PosedSuggestion(context, candidate));
+  }
+  for (size_t i = 0; i < fine.ranked.size(); ++i) {
+    if (!used[i]) ordered.push_back(UnposedSuggestion(context, fine.ranked[i]));
+  }
+  if (!options.rerank_by_alignment) {
+    // Fine-stage order; views found only by the per-model search go last.
+    std::stable_sort(ordered.begin(), ordered.end(), [](const Suggestion& a, const Suggestion& b) {
+      const int ra = a.fine_rank < 0 ? std::numeric_limits<int>::max() : a.fine_rank;
+      const int rb = b.fine_rank < 0 ? std::numeric_limits<int>::max() : b.fine_rank;
+      return ra < rb;
+    });
+  }
+  return ordered;
+}
+
+}  // namespace
+
+ViewDescription DescribeQuery(const Database& db, const PointCloud& cloud) {
+  const DatabaseOptions& db_options = db.options();
+  ViewDescription query = DescribeView(cloud, db_options.preprocess, db_options.features);
+  SOPE_CHECK(query.features.coarse.size() == db.coarse_dim() &&
+                 query.features.fine.size() == db.fine_dim(),
+             "query features have {} coarse / {} fine values, the database {} / {} (database "
+             "built by an incompatible sope?)",
+             query.features.coarse.size(), query.features.fine.size(), db.coarse_dim(),
+             db.fine_dim());
+  return query;
+}
+
+CoarseResult CoarseStage(const Database& db, const ViewDescription& query,
+                         const RecognitionOptions& options) {
+  CoarseResult result;
+  result.coarse = db.Standardise(query.features.coarse);
+  const Eigen::MatrixXf hash_row = db.HashInput(result.coarse, query.features.fine).transpose();
+  result.code = db.hasher().Encode(hash_row);
+  const uint64_t* code = result.code.code(0);
+  std::vector<HammingMatch>& matches = result.flagged;
+  if (!options.restrict_to_models.empty()) {
+    for (int m : options.restrict_to_models) {
+      SOPE_CHECK(m >= 0 && m < db.num_models(), "recognition: restrict_to_models names model {} "
+                 "of {}", m, db.num_models());
+      const ModelRecord& model = db.model(m);
+      for (int v = model.first_view; v < model.first_view + model.num_views; ++v) {
+        HammingMatch match;
+        match.index = v;
+        match.hamming_distance =
+            HammingDistance(code, db.index().code(v), db.index().words_per_code());
+        matches.push_back(match);
+      }
+    }
+  } else if (options.coarse.search == CoarseSearch::kKBest) {
+    const int k = std::min<int>(
+        db.num_views(),
+        std::max<int>(options.coarse.min_flagged,
+                      static_cast<int>(std::ceil(options.coarse.flag_fraction * db.num_views()))));
+    matches = options.coarse.coarse_kbest ? options.coarse.coarse_kbest(code, k)
+                                          : db.index().KBestSearch(code, k);
+  } else {
+    const int radius =
+        static_cast<int>(std::lround(options.coarse.radius_fraction * result.code.bits));
+    matches = db.index().RadiusSearch(code, radius);
+  }
+  return result;
+}
+
+bool RankedBefore(const RankedView& a, const RankedView& b) {
+  return a.combined != b.combined ? a.combined < b.combined : a.view < b.view;
+}
+
+StageContext::StageContext(const Database& db, const ViewDescription& query,
+                           const CoarseResult& coarse)
+    : db_(db),
+      query_(query),
+      coarse_(coarse),
+      log_query_radius_(std::log(std::max(1e-6f, query.preprocessed.radius))) {}
+
+Rigid3d StageContext::cam_from_canonical() const {
+  return Rigid3d(query_.cam_from_canonical, Eigen::Vector3d::Zero());
+}
+
+const PoseQuery& StageContext::pose_query(const PoseOptions& options) {
+  if (!have_pose_query_) {
+    const PreprocessOptions& preprocess = db_.options().preprocess;
+    const float spacing =
+        static_cast<float>(preprocess.voxel_leaf > 0.0 ? preprocess.voxel_leaf : 0.004);
+    // The described query is already canonical: its sensor frame is the canonical frame.
+    pose_query_ = MakePoseQuery(query_.preprocessed.cloud, query_.preprocessed.centroid,
+                                query_.preprocessed.radius, spacing, options);
+    have_pose_query_ = true;
+  }
+  return pose_query_;
+}
+
+const PointCloud& StageContext::ViewCloud(int view) {
+  auto it = clouds_.find(view);
+  if (it == clouds_.end()) {
+    it = clouds_.emplace(view, PointCloud()).first;
+    db_.ViewCloud(view, &it->second);
+  }
+  return it->second;
+}
+
+int StageContext::HammingTo(int view) const {
+  return HammingDistance(coarse_.code.code(0), db_.index().code(view),
+                         db_.index().words_per_code());
+}
+
+RankedView StageContext::Measure(int view_index, int hamming, const FineOptions& options) const {
+  const DistanceScales& scales = db_.distance_scales();
+  const int coarse_dim = db_.coarse_dim(), fine_dim = db_.fine_dim();
+  const Eigen::Map<const Eigen::VectorXf> query_fine(query_.features.fine.data(), fine_dim);
+  RankedView r;
+  r.view = view_index;
+  r.hamming = hamming;
+  r.fine = (Eigen::Map<const Eigen::VectorXf>(db_.fine(view_index), fine_dim) - query_fine)
+               .cwiseAbs()
+               .sum();
+  r.coarse = (Eigen::Map<const Eigen::VectorXf>(db_.coarse(view_index), coarse_dim) -
+              coarse_.coarse)
+                 .norm();
+  r.size = std::abs(log_query_radius_ - std::log(std::max(1e-6f, db_.view(view_index).radius)));
+  r.combined = options.fine_weight * r.fine / scales.fine +
+               options.coarse_weight * r.coarse / scales.coarse +
+               options.size_weight * r.size / scales.size;
+  return r;
+}
+
+FineResult FineStage(StageContext* context, const RecognitionOptions& options) {
+  const Database& db = context->db();
+  const std::vector<HammingMatch>& matches = context->coarse().flagged;
+  FineResult result;
+  std::vector<RankedView>& ranked = result.ranked;
+  ranked.resize(matches.size());
+  for (size_t i = 0; i < matches.size(); ++i) {
+    ranked[i] = context->Measure(matches[i].index, matches[i].hamming_distance, options.fine);
+  }
+  std::sort(ranked.begin(), ranked.end(), RankedBefore);
+  const FineOptions& fine = options.fine;
+  if (fine.signature_views > 0 && fine.signature_weight > 0.0 && !ranked.empty()) {
+    const PoseQuery& q = context->pose_query(options.pose);
+    const size_t count = std::min<size_t>(ranked.size(), fine.signature_views);
+    for (size_t i = 0; i < count; ++i) {
+      const ViewRecord& view = db.view(ranked[i].view);
+      const PointCloud& cloud = context->ViewCloud(ranked[i].view);
+      const std::vector<float> signature =
+          ViewSignature(view.cam_from_model, view.centroid_in_model, view.radius, cloud.points,
+                        cloud.normals, options.pose);
+      const std::vector<RollHypothesis> rolls = EstimateRoll(q.signature, signature, options.pose);
+      const double correlation = rolls.empty() ? 0.0 : rolls.front().correlation;
+      ranked[i].combined += fine.signature_weight * (1.0 - correlation);
+    }
+    std::sort(ranked.begin(), ranked.begin() + count, RankedBefore);
+  }
+  for (size_t i = 0; i < ranked.size(); ++i) {
+    ranked[i].fine_rank = static_cast<int>(i);
+    result.index_of_view.emplace(ranked[i].view, static_cast<int>(i));
+  }
+  return result;
+}
+
+std::vector<RankedView> AllViewsOf(const StageContext& context, const FineResult& fine,
+                                   int model_index, const FineOptions& options) {
+  const ModelRecord& model = context.db().model(model_index);
+  std::vector<RankedView> views;
+  views.reserve(model.num_views);
+  for (int v = model.first_view; v < model.first_view + model.num_views; ++v) {
+    const auto it = fine.index_of_view.find(v);
+    if (it != fine.index_of_view.end()) {
+      views.push_back(fine.ranked[it->second]);
+    } else {
+      views.push_back(context.Measure(v, context.HammingTo(v), options));
+    }
+  }
+  return views;
+}
+
+ScreeningRequest PlanScreening(const StageContext& context, const FineResult& fine,
+                               const RecognitionOptions& options) {
+  const ScreeningOptions& screening = options.screening;
+  ScreeningRequest request;
+  for (const RankedView& r : fine.ranked) {
+    if (static_cast<int>(request.models.size()) >= screening.models) break;
+    const int model = context.db().view(r.view).model;
+    if (std::find(request.models.begin(), request.models.end(), model) ==
+        request.models.end()) {
+      request.models.push_back(model);
+    }
+  }
+  // The screening budget is models × views_per_model views: with fewer candidate models
+  // (a small database, a pose-only query) each gets more views.
+  request.views_per_model =
+      std::max(screening.views_per_model,
+               screening.models * screening.views_per_model /
+                   std::max<int>(1, request.models.size()));
+  request.rank_all_views = screening.rank_all_views;
+  request.hypotheses = options.pose;
+  return request;
+}
+
+std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& fine,
+                                       const ScreeningRequest& request,
+                                       const RecognitionOptions& options) {
+  const Database& db = context->db();
+  const double min_separation_cos = std::cos(options.screening.view_separation);
+  // The short ICP reaches the final gate two iterations before it ends, so its score is
+  // taken at a settled pose.
+  PoseOptions quick_options = options.pose;
+  quick_options.gate_iterations = std::max(1, options.screening.quick_iterations - 2);
+  std::vector<PoseCandidate> out;
+  for (int model_index : request.models) {
+    std::vector<RankedView> views;
+    if (request.rank_all_views) {
+      views = AllViewsOf(*context, fine, model_index, options.fine);
+    } else {
+      for (const RankedView& r : fine.ranked) {
+        if (db.view(r.view).model == model_index) views.push_back(r);
+      }
+    }
+    for (const RankedView& r :
+         SeparatedViews(db, std::move(views), request.views_per_model, min_separation_cos)) {
+      PoseCandidate candidate;
+      if (ScreenView(context, r, model_index, request.hypotheses, quick_options, options,
+                     &candidate)) {
+        out.push_back(std::move(candidate));
+      }
+    }
+  }
+  std::stable_sort(out.begin(), out.end(), [](const PoseCandidate& a, const PoseCandidate& b) {
+    return a.alignment.score > b.alignment.score;
+  });
+  return out;
+}
+
+RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> candidates,
+                             int count, const RecognitionOptions& options) {
+  PoseOptions refine_options = options.pose;
+  refine_options.gate_iterations = 2;
+  RefinementResult result;
+  result.candidates = std::move(candidates);
+  std::vector<int> refined_models;
+  for (PoseCandidate& candidate : result.candidates) {
+    if (static_cast<int>(refined_models.size()) >= count) break;
+    if (std::find(refined_models.begin(), refined_models.end(), candidate.model) !=
+        refined_models.end()) {
+      continue;
+    }
+    refined_models.push_back(candidate.model);
+    RefineCandidate(context, refine_options, options, &candidate);
+    result.best_score = std::max(result.best_score, candidate.alignment.score);
+  }
+  return result;
+}
+
+std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& fine,
+                                       double best_score, int views_per_model,
+                                       const RecognitionOptions& options) {
+  // The best verification is too low to be the right model at the right pose, so the
+  // descriptors (corrupted by occlusion) probably ranked the right model or its right
+  // views too low, or the polar signature (about a centroid shifted by the occluder) gave
+  // no right roll. The verification itself is reliable there — at the true pose the true
+  // model scores ≈ 0.9 or more — so a broader hypothesis search fixes these queries.
+  const WideningOptions& widening = options.widening;
+  if (!(widening.below_score > 0.0 && best_score < widening.below_score &&
+        widening.models > 0 && options.refinement.candidates > 0)) {
+    return {};
+  }
+  const Database& db = context->db();
+  std::vector<std::pair<double, int>> model_distance;  // best view's distance, model
+  std::vector<int> pool = options.restrict_to_models;
+  if (pool.empty()) {
+    pool.resize(db.num_models());
+    std::iota(pool.begin(), pool.end(), 0);
+  }
+  for (int m : pool) {
+    double best = std::numeric_limits<double>::infinity();
+    for (const RankedView& r : AllViewsOf(*context, fine, m, options.fine)) {
+      best = std::min(best, r.combined);
+    }
+    model_distance.emplace_back(best, m);
+  }
+  std::sort(model_distance.begin(), model_distance.end());
+  ScreeningRequest request;
+  for (const auto& [distance, m] : model_distance) {
+    if (static_cast<int>(request.models.size()) >= widening.models) break;
+    request.models.push_back(m);
+  }
+  request.views_per_model = std::max(views_per_model, widening.views_per_model);
+  request.rank_all_views = true;
+  request.hypotheses = options.pose;
+  request.hypotheses.roll_hypotheses =
+      std::min(std::max(options.pose.roll_hypotheses, widening.roll_hypotheses),
+               options.pose.angle_bins / 2);
+  std::vector<PoseCandidate> wide = ScreenPoses(context, fine, request, options);
+  return RefinePoses(context, std::move(wide), widening.refine_candidates, options).candidates;
+}
+
+std::vector<PoseCandidate> EstimatePoses(StageContext* context, const FineResult& fine,
+                                         const RecognitionOptions& options) {
+  if (options.screening.models <= 0 || fine.ranked.empty()) return {};
+  const ScreeningRequest request = PlanScreening(*context, fine, options);
+  RefinementResult refined =
+      RefinePoses(context, ScreenPoses(context, fine, request, options),
+                  options.refinement.candidates, options);
+  std::vector<PoseCandidate> posed = std::move(refined.candidates);
+  for (PoseCandidate& candidate :
+       WidenSearch(context, fine, refined.best_score, request.views_per_model, options)) {
+    posed.push_back(std::move(candidate));
+  }
+  return posed;
+}
+
+Assembly AssembleSuggestions(StageContext* context, const FineResult& fine,
+                             std::vector<PoseCandidate> posed, const RecognitionOptions& options) {
+  const AssemblyOptions& assembly = options.assembly;
+  if (assembly.rerank_by_alignment) {
+    const double penalty = assembly.ranking_penalty;
+    std::stable_sort(posed.begin(), posed.end(),
+                     [penalty](const PoseCandidate& a, const PoseCandidate& b) {
+                       if (a.refined != b.refined) return a.refined;
+                       return a.alignment.score - penalty * a.ranked.combined >
+                              b.alignment.score - penalty * b.ranked.combined;
+                     });
+  }
+  Assembly result;
+  std::vector<int> seen;
+  for (Suggestion& s : OrderSuggestions(*context, fine, posed, assembly)) {
+    if (static_cast<int>(result.suggestions.size()) >= options.top_k) break;
+    int key = -1;
+    if (options.grouping == SuggestionGrouping::kModel) key = s.model;
+    if (options.grouping == SuggestionGrouping::kClass) key = s.class_index;
+    if (key >= 0) {
+      if (std::find(seen.begin(), seen.end(), key) != seen.end()) continue;
+      seen.push_back(key);
+    }
+    result.suggestions.push_back(std::move(s));
+  }
+  // Suggestions without a verified pose still get the roll about the line of sight (the
+  // best signature correlation), so their pose is the unrefined estimate, not the bare
+  // database view's.
+  for (Suggestion& s : result.suggestions) {
+    if (s.posed) continue;
+    const ViewRecord& view = context->db().view(s.view);
+    const PointCloud& cloud = context->ViewCloud(s.view);
+    const std::vector<PoseHypothesis> hypotheses =
+        InitialPoses(view.cam_from_model, view.centroid_in_model, view.radius, cloud.points,
+                     cloud.normals, context->pose_query(options.pose), options.pose);
+    if (hypotheses.empty()) continue;
+    s.roll = hypotheses.front().roll.roll;
+    s.cam_from_model = context->cam_from_canonical() * hypotheses.front().canonical_from_model;
+  }
+  // A verified best answer below the threshold is no known object.
+  result.recognised = !result.suggestions.empty() &&
+                      (!result.suggestions.front().posed ||
+                       result.suggestions.front().score >= assembly.min_score);
+  return result;
+}
+
+}  // namespace sope

@@ -1,0 +1,170 @@
+// The stages of Recogniser::Recognise, each callable alone (a test or a bench can run one
+// stage on the outputs of the previous ones):
+//
+//   ViewDescription query = DescribeQuery(db, cloud);            // preprocess + features
+//   CoarseResult coarse = CoarseStage(db, query, options);        // codes, Hamming search
+//   StageContext context(db, query, coarse);                      // shared by the rest
+//   FineResult fine = FineStage(&context, options);               // ranking of the flagged
+//   ScreeningPlan plan = PlanScreening(context, fine, options);   // candidate models
+//   std::vector<PoseCandidate> screened = ScreenPoses(&context, fine, plan.request, options);
+//   RefinementResult refined = RefinePoses(&context, std::move(screened),
+//                                          options.refinement.candidates, options);
+//   std::vector<PoseCandidate> wide = WidenSearch(&context, fine, refined.best_score,
+//                                                 plan.request.views_per_model, options);
+//   Assembly answer = AssembleSuggestions(&context, fine, posed, options);
+//
+// EstimatePoses runs screening → refinement → widening as Recognise does. Every function
+// is deterministic: the same inputs give bit-identical outputs.
+#pragma once
+
+#include <unordered_map>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/point_cloud.h"
+#include "core/rigid3d.h"
+#include "recogniser/database.h"
+#include "recogniser/hamming_search.h"
+#include "recogniser/hashing.h"
+#include "recogniser/pose.h"
+#include "recogniser/recogniser.h"
+#include "recogniser/view_description.h"
+
+namespace sope {
+
+// Preprocess + canonical frame + features of the query, exactly as the database views
+// were described (the database's stored options). Throws sope::Error on an unusable cloud
+// or features of other dimensions than the database's.
+ViewDescription DescribeQuery(const Database& db, const PointCloud& cloud);
+
+// Coarse stage output.
+struct CoarseResult {
+  Eigen::VectorXf coarse;             // the query's standardised coarse vector
+  BinaryCodes code;                   // its code (the database's hasher)
+  std::vector<HammingMatch> flagged;  // flagged views (restrict_to_models: all their views)
+};
+// Standardise, encode, Hamming search (k-best or radius; every view of
+// restrict_to_models when given — throws sope::Error naming a model out of range).
+CoarseResult CoarseStage(const Database& db, const ViewDescription& query,
+                         const RecognitionOptions& options);
+
+// A database view with its fine-stage distances to the query.
+struct RankedView {
+  int view = 0;
+  int hamming = 0;
+  double fine = 0.0, coarse = 0.0, size = 0.0;
+  double combined = 0.0;  // Σ weight · distance / DistanceScales (+ signature term)
+  int fine_rank = -1;     // position in the fine ranking of the flagged views, −1 if not flagged
+};
+// The ranking order: by combined distance, ties by view index.
+bool RankedBefore(const RankedView& a, const RankedView& b);
+
+// What the stages after the coarse one share: the database, the query, its codes, the
+// canonical pose query (built on first use) and the decoded view clouds (each once).
+// Keeps references: db, query and coarse must outlive it. Not thread-safe.
+class StageContext {
+ public:
+  StageContext(const Database& db, const ViewDescription& query, const CoarseResult& coarse);
+
+  const Database& db() const { return db_; }
+  const ViewDescription& query() const { return query_; }
+  const CoarseResult& coarse() const { return coarse_; }
+  // Rotation of the canonical query frame into the camera frame.
+  Rigid3d cam_from_canonical() const;
+  // The canonical query for roll, ICP and verification (built with `options` on the
+  // first call; later calls return the same).
+  const PoseQuery& pose_query(const PoseOptions& options);
+  // Decoded cloud of a database view (model frame, farthest-point order).
+  const PointCloud& ViewCloud(int view);
+  // Hamming distance of a database view's code to the query's.
+  int HammingTo(int view) const;
+  // Fine-stage distances of a database view (no signature term).
+  RankedView Measure(int view, int hamming, const FineOptions& options) const;
+
+ private:
+  const Database& db_;
+  const ViewDescription& query_;
+  const CoarseResult& coarse_;
+  double log_query_radius_ = 0.0;
+  PoseQuery pose_query_;
+  bool have_pose_query_ = false;
+  std::unordered_map<int, PointCloud> clouds_;
+};
+
+// Fine stage output.
+struct FineResult {
+  std::vector<RankedView> ranked;              // best first; fine_rank = position
+  std::unordered_map<int, int> index_of_view;  // view → index into `ranked`
+};
+// Ranks the flagged views (FineOptions; the polar-signature term for the first
+// signature_views when weighted).
+FineResult FineStage(StageContext* context, const RecognitionOptions& options);
+// Every view of `model` with its fine-stage distances (flagged ones as ranked).
+std::vector<RankedView> AllViewsOf(const StageContext& context, const FineResult& fine,
+                                   int model, const FineOptions& options);
+
+// A pose hypothesis during the pose stages.
+struct PoseCandidate {
+  RankedView ranked;  // the view it started from
+  int view = 0;       // the view whose cloud the pose and score refer to
+  int model = 0;
+  Rigid3d canonical_from_model;
+  double roll = 0.0;
+  IcpResult icp;
+  AlignmentScore alignment;
+  bool refined = false;
+};
+
+// Which models get pose hypotheses, how many views each, ranked how, with which roll
+// hypotheses.
+struct ScreeningRequest {
+  std::vector<int> models;
+  int views_per_model = 0;
+  bool rank_all_views = false;
+  PoseOptions hypotheses;
+};
+// The first ScreeningOptions::models distinct models of the fine ranking; the budget of
+// models × views_per_model views shared among them (fewer models: more views each).
+ScreeningRequest PlanScreening(const StageContext& context, const FineResult& fine,
+                               const RecognitionOptions& options);
+// Per model of the request: its views ranked, up to views_per_model of them at least
+// view_separation apart; roll hypotheses and a short ICP on a prefix of each view's
+// cloud; the best hypothesis per view. Sorted by score, best first (stable).
+std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& fine,
+                                       const ScreeningRequest& request,
+                                       const RecognitionOptions& options);
+
+struct RefinementResult {
+  std::vector<PoseCandidate> candidates;  // as given; the refined ones marked `refined`
+  double best_score = 0.0;                // best verification score of the refined ones
+};
+// Refines the best hypothesis of the first `count` distinct models of `candidates`
+// (sorted by their short-ICP score): ICP with the stored view nearest to the current
+// pose, repeated once the pose has settled, and the full verification with that view.
+RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> candidates,
+                             int count, const RecognitionOptions& options);
+
+// The widened search (WideningOptions) when `best_score` is below its threshold: more
+// models (by their best view over the whole database), all views ranked, more views and
+// rolls each, refined. Empty when not triggered.
+std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& fine,
+                                       double best_score, int views_per_model,
+                                       const RecognitionOptions& options);
+
+// Screening → refinement → widening: every pose candidate (empty when
+// ScreeningOptions::models is 0 or nothing was flagged).
+std::vector<PoseCandidate> EstimatePoses(StageContext* context, const FineResult& fine,
+                                         const RecognitionOptions& options);
+
+struct Assembly {
+  std::vector<Suggestion> suggestions;  // best first, at most top_k
+  bool recognised = false;              // see RecognitionResult::recognised
+};
+// Posed candidates first (re-ranked by AssemblyOptions), then the rest of the fine
+// ranking; grouped, cut to top_k; unposed suggestions get their best roll; the
+// verification threshold decides `recognised`.
+Assembly AssembleSuggestions(StageContext* context, const FineResult& fine,
+                             std::vector<PoseCandidate> posed, const RecognitionOptions& options);
+
+}  // namespace sope
