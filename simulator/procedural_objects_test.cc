@@ -560,7 +560,7 @@ TEST(WriteProceduralModels, WritesTheModelsTreeReadableBack) {
     entries += entry.is_regular_file() ? 1 : 0;
   }
   EXPECT_EQ(entries, static_cast<int>(paths.size()));
-  EXPECT_THROW_WITH_MESSAGE(WriteProceduralModels(dir, 0, 0), Error, "instances_per_class",
+  EXPECT_THROW_WITH_MESSAGE(WriteProceduralModels(dir, 0, 0), Error, "instances per class",
                             "got 0");
   EXPECT_THROW_WITH_MESSAGE(WriteProceduralModels("", 1, 0), Error, "empty directory name");
 }
