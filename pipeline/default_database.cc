@@ -150,7 +150,9 @@ std::string EnsureDefaultDatabase(const DefaultDatabaseOptions& options,
                directory, classes, options.instances, options.views);
   const std::string root = fs::path(directory).parent_path().string();
   RemoveStaleStaging(root, fs::path(directory).filename().string());
-  StagedDirectory staged(directory);
+  // The entry is sope's own (a virtual-db-* directory in sope's cache): an incomplete one
+  // may be replaced.
+  StagedDirectory staged(directory, [](const std::string&) { return true; });
   BuildEntry(options, staged.path(), directory, progress);
   staged.Commit();  // replaces an incomplete entry only now
   return db_path;

@@ -53,7 +53,7 @@ TEST(DefaultDatabase, CtrlCDuringTheBuildLeavesNoEntryAndTheNextRunBuildsIt) {
     std::signal(SIGINT, SIG_DFL);
     try {
       EnsureDefaultDatabase(options, [](int done, int) {
-        if (done == 3) std::raise(SIGINT);
+        if (done >= 3) std::raise(SIGINT);  // progress may skip a count when views finish together
       });
     } catch (...) {
     }
