@@ -110,5 +110,20 @@ uint8_t ReadEveryByte(const std::vector<cv::Mat>& images) {
   return max_level;
 }
 
+size_t FrameBytes(const std::vector<cv::Mat>& images) {
+  size_t bytes = 0;
+  for (const cv::Mat& image : images) bytes += image.total() * image.elemSize();
+  return bytes;
+}
+
+void SetFrameRateCounters(benchmark::State& state, const std::vector<cv::Mat>& images) {
+  state.counters["pixels/s"] =
+      benchmark::Counter(static_cast<double>(images.empty() ? 0 : images.front().total()),
+                         benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["frame_bytes/s"] = benchmark::Counter(
+      static_cast<double>(FrameBytes(images)), benchmark::Counter::kIsIterationInvariantRate,
+      benchmark::Counter::kIs1024);
+}
+
 }  // namespace bench
 }  // namespace sope

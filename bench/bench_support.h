@@ -11,6 +11,7 @@
 //  - SOPE_BENCHMARK_MAIN(): BENCHMARK_MAIN() with that reporter.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -74,6 +75,12 @@ class MedianTimesReporter : public DisplayReporter {
 // be optimised away): the memory-bandwidth bound of a decoder that reads each frame byte
 // once. Returns the largest level seen.
 uint8_t ReadEveryByte(const std::vector<cv::Mat>& images);
+
+// The bytes of `images` (every frame, whatever its depth and channels).
+size_t FrameBytes(const std::vector<cv::Mat>& images);
+// Rate counters of a decoder benchmark that reads `images` once per iteration: pixels/s
+// (one frame's pixels) and frame_bytes/s (every frame's bytes, in 1024 units).
+void SetFrameRateCounters(benchmark::State& state, const std::vector<cv::Mat>& images);
 
 }  // namespace bench
 }  // namespace sope

@@ -103,18 +103,10 @@ const BenchInput& Input() {
 }
 
 size_t Pixels() { return Input().frame_set.images.front().total(); }
-size_t FrameBytes() {
-  size_t bytes = 0;
-  for (const cv::Mat& image : Input().frame_set.images) bytes += image.total() * image.elemSize();
-  return bytes;
-}
+size_t FrameBytes() { return bench::FrameBytes(Input().frame_set.images); }
 
 void SetCounters(benchmark::State& state) {
-  state.counters["pixels/s"] = benchmark::Counter(static_cast<double>(Pixels()),
-                                                  benchmark::Counter::kIsIterationInvariantRate);
-  state.counters["frame_bytes/s"] = benchmark::Counter(
-      static_cast<double>(FrameBytes()), benchmark::Counter::kIsIterationInvariantRate,
-      benchmark::Counter::kIs1024);
+  bench::SetFrameRateCounters(state, Input().frame_set.images);
   state.SetLabel(Input().source);
 }
 
