@@ -247,26 +247,30 @@ user_dir_case "decode --out DIR with a user's file" decode decode --frames "$F/s
 user_dir_case "objects --out DIR with a user's file" objects objects --instances 1
 
 # A full disk, imitated by RLIMIT_FSIZE with SIGXFSZ ignored (write(2) fails with EFBIG).
-full_disk_case() {  # full_disk_case NAME COMMAND NEEDLE ARGS...
-  local name=$1 command=$2 needle=$3
-  shift 3
+full_disk_case() {  # full_disk_case NAME BLOCKS COMMAND NEEDLE ARGS... (BLOCKS: ulimit -f)
+  local name=$1 blocks=$2 command=$3 needle=$4
+  shift 4
   local start end rc problem="" first
   start=$(date +%s.%N)
-  ( trap '' XFSZ; ulimit -f 16; exec timeout -s KILL 120 "$S" "$@" > .out 2> .err ); rc=$?
+  ( trap '' XFSZ; ulimit -f "$blocks"; exec timeout -s KILL 120 "$S" "$@" > .out 2> .err ); rc=$?
   end=$(date +%s.%N)
   first=$(head -n 1 .err)
   if [ $rc -eq 0 ]; then problem="exit 0"; elif [ $rc -ge 128 ]; then problem="rc=$rc"; fi
   [ "$(wc -l < .err)" -eq 1 ] && [[ "$first" == "sope $command: error: "*"$needle"* ]] || problem="$problem; stderr: ${first:0:80}"
   local left
   left=$(leftovers)
+  # scan-and-recognise's --out is a results directory that grows scan by scan (not
+  # staged): what must not remain is a file without its results.jsonl line.
+  if [ "$command" = scan-and-recognise ] && [ "$left" = "results " ] &&
+     [ -z "$(ls -A results)" ]; then left=""; fi
   [ -n "$left" ] && problem="$problem; left: $left"
   report "$name" "$problem" "$start" "$end" "rc=$rc: $first"
   find "$W" -mindepth 1 -maxdepth 1 ! -name fix -exec rm -rf {} +
 }
-full_disk_case "decode --out on a full disk" decode "" decode --frames "$F/scan" --out maps
-full_disk_case "objects on a full disk" objects "File too large" objects --instances 2 --out models
-full_disk_case "simulate on a full disk" simulate "File too large" $SPHERE --out sim
-full_disk_case "scan-and-recognise --out on a full disk" scan-and-recognise "" \
+full_disk_case "decode --out on a full disk" 1 decode "" decode --frames "$F/scan" --out maps
+full_disk_case "objects on a full disk" 16 objects "File too large" objects --instances 2 --out models
+full_disk_case "simulate on a full disk" 16 simulate "File too large" $SPHERE --out sim
+full_disk_case "scan-and-recognise --out on a full disk" 16 scan-and-recognise "" \
   scan-and-recognise --frames "$F/scan" --db "$F/db.sopedb" --out results
 
 # Signals while a staged output is being written: exit 128+sig, one line "interrupted",
