@@ -5,12 +5,15 @@
 // (SOPE-THESIS-NOTES.md; recognition alone, on its hardware: compare the ratio counters,
 // not absolute times — this machine is shared).
 //
-// Two configurations in the same run, on the same frame sets:
+// Three configurations in the same run, on the same frame sets:
 //   sope   — the default database of `sope scan-and-recognise --virtual` (10 procedural
 //            classes × 2 instances × 100 Fibonacci views, "sope" preset) and the default
 //            recognition options (k-best coarse search, fine ranking, roll + ICP + verify);
 //   thesis — the thesis's database preset (18 viewpoints, its features, MLH codes) and
-//            RecognitionOptions::ThesisPreset (radius search, no pose refinement).
+//            RecognitionOptions::ThesisPreset (radius search, no pose refinement);
+//   overlapped — the sope configuration as the live loop runs it: decoded during the
+//            capture (IncrementalDecoder; after the last frame only its bit and the
+//            finish), triangulated on 1 or 2 threads.
 // Input: 8 scans on the virtual rig (default 1280×720 camera, 1024×768 projector, Gray code
 // x and y with inverses) of unseen procedural instances in random poses before a backdrop,
 // captured through a RigSession once at start-up (not timed). The databases are built at
