@@ -121,11 +121,21 @@ ScanRecognition RecogniseFrameSet(const FrameSet& frames, const Triangulator& tr
                                   const ObjectSegmentationOptions& segmentation,
                                   const Recogniser& recogniser,
                                   const RecognitionOptions& recognition_options) {
-  segmentation.Check();
   decoder_options.Check();
+  return RecogniseScan(ScanFrameSet(frames, triangulator, decoder_options), segmentation,
+                       recogniser, recognition_options);
+}
+
+ScanRecognition RecogniseScan(ScanResult scan, const ObjectSegmentationOptions& segmentation,
+                              const Recogniser& recogniser,
+                              const RecognitionOptions& recognition_options) {
+  segmentation.Check();
   ScanRecognition out;
-  const Stopwatch total;
-  out.scan = ScanFrameSet(frames, triangulator, decoder_options);
+  // The clock started when decoding did (after the last frame).
+  const double decoded_ms = scan.decode_ms + scan.triangulate_ms;
+  const Stopwatch since_decoded;
+  const auto total_ms = [&] { return decoded_ms + since_decoded.WallMs(); };
+  out.scan = std::move(scan);
   out.timing.decode = out.scan.decode_ms;
   out.timing.triangulate = out.scan.triangulate_ms;
   const PointCloud& cloud = out.scan.triangulation.cloud;
@@ -134,7 +144,7 @@ ScanRecognition RecogniseFrameSet(const FrameSet& frames, const Triangulator& tr
     out.message = fmt::format("no points: {} pixels decoded, none triangulated (no projector "
                               "light on the scene, or a wrong calibration?)",
                               out.scan.correspondences.CountValid());
-    out.timing.total = total.WallMs();
+    out.timing.total = total_ms();
     return out;
   }
   const Stopwatch segment;
@@ -146,13 +156,13 @@ ScanRecognition RecogniseFrameSet(const FrameSet& frames, const Triangulator& tr
                               "(nothing in front of the rig?)",
                               out.object.size(), cloud.size(), segmentation.min_range,
                               segmentation.max_range);
-    out.timing.total = total.WallMs();
+    out.timing.total = total_ms();
     return out;
   }
   const Stopwatch recognise;
   out.recognition = recogniser.Recognise(out.object, recognition_options);
   out.timing.recognise = recognise.WallMs();
-  out.timing.total = total.WallMs();
+  out.timing.total = total_ms();
   if (out.recognition.empty()) {
     out.status = ScanStatus::kNoSuggestion;
     out.message = "no suggestion (the database has no comparable view)";
