@@ -55,6 +55,9 @@ int RunEval(int argc, char** argv) {
   app.add_flag("--scan-pipeline", options.through_scan,
                "Scan every query on the virtual rig (patterns rendered, decoded, triangulated, "
                "range band) instead of rendering its depth; no occluder; ~1 s per query");
+  app.add_flag("--scan-occlusion", options.occlude_scans,
+               "With --scan-pipeline: the query's occluder (--occlusion) hides its share of "
+               "the scanned object's points");
   app.add_option("--adds", options.adds_fraction, "ADD-S threshold, fraction of the diameter")
       ->capture_default_str();
   // Recognition options (--top, --pose-models, --flag-fraction, …; RecognitionOptions::

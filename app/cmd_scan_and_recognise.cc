@@ -60,7 +60,7 @@ void Flags::Add(CLI::App& app) {
       ->excludes(camera_option);
   app.add_option("--db", db_path,
                  "Database (.sopedb, from sope build-db); default for the virtual rig: the "
-                 "cached procedural database (10 classes x 2 instances x 100 views)");
+                 "cached procedural database (10 classes x 8 instances x 100 views)");
   app.add_option("--calibration", calibration_path,
                  "Rig calibration YAML (--frames: default the one frames.json names; virtual: "
                  "default the virtual rig's true calibration)");
@@ -92,7 +92,7 @@ void Flags::Add(CLI::App& app) {
   virtual_group
       ->add_option("--instances", instances,
                    "unseen (instances not in the database) or database (the default "
-                   "database's own instances, seeds 0-1)")
+                   "database's own instances, seeds 0-7)")
       ->capture_default_str();
   virtual_group->add_flag("--no-backdrop", no_backdrop, "No backdrop behind the object");
   decoder.Add(app);

@@ -30,6 +30,8 @@
 // Benchmarks:
 //  BM_Recognise/sope                  default RecognitionOptions on the sope database (k-best
 //                                     coarse search, fine ranking, roll + ICP + verification)
+//  BM_Recognise/sope_no_class_ranking the same with AssemblyOptions::class_ranking off (the
+//                                     cost of the class scores, side by side)
 //  BM_Recognise/thesis                RecognitionOptions::ThesisPreset(MLH) on the thesis
 //                                     database (radius search, VFH + radial ranking, no ICP)
 //  BM_Recognise/thesis_opts_sope_db   ThesisPreset(ITQ) on the sope database
@@ -654,6 +656,11 @@ void RegisterAll() {
         ->Unit(benchmark::kMillisecond);
   };
   add("BM_Recognise/sope", BM_Recognise, std::string("BM_Recognise/sope"), false, sope_options);
+  // The same without class-aware ranking (issue 16): its cost, side by side.
+  RecognitionOptions no_class_ranking;
+  no_class_ranking.assembly.class_ranking = false;
+  add("BM_Recognise/sope_no_class_ranking", BM_Recognise,
+      std::string("BM_Recognise/sope_no_class_ranking"), false, no_class_ranking);
   add("BM_Recognise/thesis", BM_Recognise, std::string("BM_Recognise/thesis"), true, thesis_mlh);
   add("BM_Recognise/thesis_opts_sope_db", BM_Recognise,
       std::string("BM_Recognise/thesis_opts_sope_db"), false, thesis_itq);

@@ -308,8 +308,8 @@ cv::Mat DrawScanOverlay(const ScanReport& report, const Database& database) {
                                   Rigid3d(), label);
   }
   const Suggestion& best = result.best();
-  const std::string label =
-      fmt::format("{} {} {:.2f}", best.class_name, best.model_name, best.score);
+  std::string label = fmt::format("{} {} {:.2f}", best.class_name, best.model_name, best.score);
+  if (!result.ambiguous_with.empty()) label += fmt::format(" (or {}?)", result.ambiguous_with);
   const ModelRecord& model = database.model(best.model);
   try {
     TriangleMesh mesh = ReadMesh(model.source_path);

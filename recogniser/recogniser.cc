@@ -174,7 +174,32 @@ const std::vector<OptionField<AssemblyOptions>>& AssemblyOptions::Fields() {
       Field(&O::min_score, "min_score",
             "Below this verification score of the best answer: no known object (0: off)")
           .In(0.0, 1.0)
-          .Flag("--min-score")};
+          .Flag("--min-score"),
+      Field(&O::class_ranking, "class_ranking",
+            "No class-aware ranking (the first suggestion is the best-verified one, whatever "
+            "the evidence for its class)")
+          .Flag("--no-class-ranking"),
+      Field(&O::class_models, "class_models",
+            "Class verification: mean score of the class's best this many refined models")
+          .AtLeast(1)
+          .Flag("--class-models"),
+      Field(&O::class_vote_views, "class_vote_views",
+            "Fine-ranked views whose classes vote (0: no vote)")
+          .AtLeast(0)
+          .Flag("--class-vote-views"),
+      Field(&O::class_vote_weight, "class_vote_weight",
+            "Weight of the vote share beside the verification score")
+          .AtLeast(0.0)
+          .Flag("--class-vote-weight"),
+      Field(&O::class_temperature, "class_temperature",
+            "Softmax temperature of the class probabilities")
+          .Above(0.0)
+          .Flag("--class-temperature"),
+      Field(&O::ambiguity_margin, "ambiguity_margin",
+            "Name the second class (ambiguous_with) when its probability is within this of "
+            "the first's")
+          .In(0.0, 1.0)
+          .Flag("--ambiguity-margin")};
   return fields;
 }
 void AssemblyOptions::Check() const { CheckFields(*this, Fields(), "recognition: assembly."); }
@@ -219,6 +244,7 @@ RecognitionOptions RecognitionOptions::ThesisPreset(HashMethod method) {
   options.fine.size_weight = 0.0;
   options.screening.models = 0;
   options.assembly.rerank_by_alignment = false;
+  options.assembly.class_ranking = false;
   options.grouping = SuggestionGrouping::kView;
   return options;
 }
@@ -285,6 +311,18 @@ std::string RecognitionResultToJson(const RecognitionResult& result) {
   nlohmann::json candidates = nlohmann::json::array();
   for (const Suggestion& s : result.suggestions) candidates.push_back(SuggestionToJson(s));
   j["candidates"] = candidates;
+  if (!result.classes.empty()) {
+    nlohmann::json classes = nlohmann::json::array();
+    for (const ClassScore& c : result.classes) {
+      classes.push_back({{"class", c.class_name},
+                         {"score", c.probability},
+                         {"verification", c.verification},
+                         {"vote", c.vote}});
+    }
+    j["classes"] = classes;
+    j["ambiguous_with"] =
+        result.ambiguous_with.empty() ? nlohmann::json(nullptr) : nlohmann::json(result.ambiguous_with);
+  }
   return j.dump();
 }
 
@@ -329,6 +367,8 @@ RecognitionResult Recogniser::Recognise(const PointCloud& cloud,
   Assembly assembly = AssembleSuggestions(&context, fine, std::move(posed), options);
   result.suggestions = std::move(assembly.suggestions);
   result.recognised = assembly.recognised;
+  result.classes = std::move(assembly.classes);
+  result.ambiguous_with = std::move(assembly.ambiguous_with);
   result.timing.pose = watch.WallMs();
   result.timing.pose_cpu = watch.CpuMs();
   result.timing.total = total_watch.WallMs();

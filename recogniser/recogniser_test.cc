@@ -373,6 +373,146 @@ TEST_F(RecogniserTest, NoKnownObjectBelowTheVerificationThreshold) {
   EXPECT_TRUE(recogniser.Recognise(noise, off).recognised);
 }
 
+// Issue 16: class-aware ranking. A constructed confusion: the best-verified single model
+// is of class B (0.80), but both models of class A verify almost as well (0.78, 0.77)
+// while B's other model does not (0.20). With class_models = 2 the class verification is
+// the mean of the best two models (A 0.775, B 0.50), so class A wins and its best model
+// (0.78) becomes the first suggestion; without class ranking the first suggestion is B's
+// 0.80 model. The probabilities are the softmax of verification / temperature (votes off).
+class ClassRankingTest : public RecogniserTest {
+ protected:
+  // The models of the first two classes that have two models each.
+  void SetUp() override {
+    for (int c = 0; c < static_cast<int>(db_->classes().size()); ++c) {
+      std::vector<int> models;
+      for (int m = 0; m < db_->num_models(); ++m) {
+        if (db_->model(m).class_index == c) models.push_back(m);
+      }
+      if (models.size() >= 2) by_class_.push_back(models);
+    }
+    ASSERT_GE(by_class_.size(), 2u);
+  }
+  // A refined candidate of `model` (its first view) with verification `score`.
+  static PoseCandidate Candidate(const StageContext& context, int model, double score) {
+    PoseCandidate c;
+    c.model = model;
+    c.view = db_->model(model).first_view;
+    c.ranked = context.Measure(c.view, context.HammingTo(c.view), FineOptions());
+    c.refined = true;
+    c.alignment.score = score;
+    return c;
+  }
+  std::vector<std::vector<int>> by_class_;
+};
+
+TEST_F(ClassRankingTest, ClassEvidenceFixesAConstructedConfusion) {
+  const std::vector<Query> queries = MakeQueries(1, 77);
+  const ViewDescription query = DescribeQuery(*db_, queries[0].query.cloud);
+  RecognitionOptions options;
+  options.assembly.class_vote_views = 0;  // verification only: the expected values are exact
+  options.assembly.class_models = 2;
+  const CoarseResult coarse = CoarseStage(*db_, query, options);
+  StageContext context(*db_, query, coarse);
+  const FineResult fine = FineStage(&context, options);
+  const int a0 = by_class_[0][0], a1 = by_class_[0][1], b0 = by_class_[1][0], b1 = by_class_[1][1];
+  const std::vector<PoseCandidate> posed = {
+      Candidate(context, b0, 0.80), Candidate(context, a0, 0.78), Candidate(context, a1, 0.77),
+      Candidate(context, b1, 0.20)};
+  const std::string class_a = db_->model(a0).class_name, class_b = db_->model(b0).class_name;
+
+  RecognitionOptions plain = options;
+  plain.assembly.class_ranking = false;
+  const Assembly before = AssembleSuggestions(&context, fine, posed, plain);
+  ASSERT_FALSE(before.suggestions.empty());
+  EXPECT_EQ(before.suggestions[0].model, b0);
+  EXPECT_TRUE(before.classes.empty());
+
+  const Assembly after = AssembleSuggestions(&context, fine, posed, options);
+  ASSERT_FALSE(after.suggestions.empty());
+  EXPECT_EQ(after.suggestions[0].model, a0);  // class A's best model
+  EXPECT_DOUBLE_EQ(after.suggestions[0].score, 0.78);
+  EXPECT_EQ(after.suggestions[1].model, b0);  // the rest keep their order
+  ASSERT_EQ(after.classes.size(), 2u);        // only classes with evidence
+  EXPECT_EQ(after.classes[0].class_name, class_a);
+  EXPECT_EQ(after.classes[1].class_name, class_b);
+  EXPECT_NEAR(after.classes[0].verification, 0.775, 1e-12);
+  EXPECT_NEAR(after.classes[1].verification, 0.50, 1e-12);
+  const double t = options.assembly.class_temperature;
+  EXPECT_NEAR(after.classes[0].probability / after.classes[1].probability,
+              std::exp((0.775 - 0.50) / t), 1e-6 * std::exp((0.775 - 0.50) / t));
+  EXPECT_NEAR(after.classes[0].probability + after.classes[1].probability, 1.0, 1e-12);
+  EXPECT_TRUE(after.ambiguous_with.empty());  // p_A − p_B ≈ 0.99 > margin
+
+  // class_models = 1: the best single model decides, B wins (0.80 against 0.78).
+  options.assembly.class_models = 1;
+  const Assembly single = AssembleSuggestions(&context, fine, posed, options);
+  EXPECT_EQ(single.suggestions[0].model, b0);
+  EXPECT_EQ(single.classes[0].class_name, class_b);
+  // p_B − p_A = tanh(0.02 / 2T) = 0.197 at T = 0.05: within the 0.25 margin, so ambiguous.
+  EXPECT_NEAR(single.classes[0].probability - single.classes[1].probability,
+              std::tanh(0.02 / (2 * t)), 1e-9);
+  EXPECT_EQ(single.ambiguous_with, class_a);
+  options.assembly.ambiguity_margin = 0.1;  // now outside the margin
+  EXPECT_TRUE(AssembleSuggestions(&context, fine, posed, options).ambiguous_with.empty());
+}
+
+// The class-balanced vote of the fine ranking: weight 1/(rank+1) divided by the class's
+// share of the database's views, normalised to sum 1 over the classes (no verification).
+TEST_F(ClassRankingTest, VoteOfTheFineRankingIsClassBalanced) {
+  const std::vector<Query> queries = MakeQueries(1, 78);
+  const ViewDescription query = DescribeQuery(*db_, queries[0].query.cloud);
+  RecognitionOptions options;
+  const CoarseResult coarse = CoarseStage(*db_, query, options);
+  StageContext context(*db_, query, coarse);
+  const FineResult fine = FineStage(&context, options);
+  const std::vector<ClassScore> scores = ScoreClasses(context, fine, {}, options.assembly);
+  std::vector<double> expected(db_->classes().size(), 0.0), views(db_->classes().size(), 0.0);
+  for (int m = 0; m < db_->num_models(); ++m) views[db_->model(m).class_index] += db_->model(m).num_views;
+  double total = 0.0;
+  const size_t voters = std::min<size_t>(fine.ranked.size(), options.assembly.class_vote_views);
+  ASSERT_GT(voters, 0u);
+  for (size_t i = 0; i < voters; ++i) {
+    const int c = db_->model(db_->view(fine.ranked[i].view).model).class_index;
+    const double w = 1.0 / (i + 1.0) / (views[c] / db_->num_views());
+    expected[c] += w;
+    total += w;
+  }
+  double probability_sum = 0.0;
+  for (size_t i = 0; i < scores.size(); ++i) {
+    EXPECT_NEAR(scores[i].vote, expected[scores[i].class_index] / total, 1e-12);
+    EXPECT_EQ(scores[i].verification, 0.0);
+    if (i > 0) EXPECT_GE(scores[i - 1].probability, scores[i].probability);
+    probability_sum += scores[i].probability;
+  }
+  EXPECT_NEAR(probability_sum, 1.0, 1e-12);
+}
+
+// The JSON carries the class scores and ambiguous_with; the thesis preset has neither.
+TEST_F(ClassRankingTest, JsonHasClassScoresAndAmbiguity) {
+  const std::vector<Query> queries = MakeQueries(1, 5);
+  const RecognitionResult result = Recogniser(*db_).Recognise(queries[0].query.cloud);
+  const nlohmann::json j = nlohmann::json::parse(RecognitionResultToJson(result));
+  ASSERT_TRUE(j.contains("classes"));
+  ASSERT_EQ(j.at("classes").size(), result.classes.size());
+  ASSERT_FALSE(result.classes.empty());
+  EXPECT_EQ(j.at("classes")[0].at("class"), result.classes[0].class_name);
+  EXPECT_EQ(j.at("classes")[0].at("class"), j.at("class"));  // the first suggestion's class
+  EXPECT_DOUBLE_EQ(j.at("classes")[0].at("score").get<double>(), result.classes[0].probability);
+  EXPECT_TRUE(j.at("classes")[0].contains("verification"));
+  EXPECT_TRUE(j.at("classes")[0].contains("vote"));
+  ASSERT_TRUE(j.contains("ambiguous_with"));
+  if (result.ambiguous_with.empty()) {
+    EXPECT_TRUE(j.at("ambiguous_with").is_null());
+  } else {
+    EXPECT_EQ(j.at("ambiguous_with"), result.ambiguous_with);
+  }
+  const RecognitionResult thesis = Recogniser(*db_).Recognise(
+      queries[0].query.cloud, RecognitionOptions::ThesisPreset(db_->hasher().method()));
+  const nlohmann::json jt = nlohmann::json::parse(RecognitionResultToJson(thesis));
+  EXPECT_FALSE(jt.contains("classes"));
+  EXPECT_FALSE(jt.contains("ambiguous_with"));
+}
+
 // `f` throws sope::Error whose message contains `what`.
 template <class F>
 void ExpectErrorNaming(F f, const std::string& what) {

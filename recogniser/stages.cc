@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <numeric>
 #include <utility>
@@ -489,9 +490,88 @@ std::vector<PoseCandidate> EstimatePoses(StageContext* context, const FineResult
   return posed;
 }
 
+std::vector<ClassScore> ScoreClasses(const StageContext& context, const FineResult& fine,
+                                     const std::vector<PoseCandidate>& posed,
+                                     const AssemblyOptions& options) {
+  const Database& db = context.db();
+  const int num_classes = static_cast<int>(db.classes().size());
+  std::vector<ClassScore> scores(num_classes);
+  std::vector<uint8_t> evidence(num_classes, 0);
+  for (int c = 0; c < num_classes; ++c) {
+    scores[c].class_index = c;
+    scores[c].class_name = db.classes()[c];
+  }
+  // Verification: the best refined score of each model, then per class the mean of its
+  // best class_models models (a class with fewer refined models counts the missing as 0).
+  std::unordered_map<int, double> model_best;
+  for (const PoseCandidate& candidate : posed) {
+    if (!candidate.refined) continue;
+    double& best = model_best.emplace(candidate.model, 0.0).first->second;
+    best = std::max(best, candidate.alignment.score);
+  }
+  std::vector<std::vector<double>> class_models(num_classes);
+  for (const auto& [model, score] : model_best) {
+    class_models[db.model(model).class_index].push_back(score);
+  }
+  for (int c = 0; c < num_classes; ++c) {
+    std::vector<double>& models = class_models[c];
+    if (models.empty()) continue;
+    std::sort(models.begin(), models.end(), std::greater<double>());
+    const int n = std::max(1, options.class_models);
+    double sum = 0.0;
+    for (int i = 0; i < n && i < static_cast<int>(models.size()); ++i) sum += models[i];
+    scores[c].verification = sum / n;
+    evidence[c] = 1;
+  }
+  // Class-balanced vote of the first fine-ranked views.
+  std::vector<int> class_views(num_classes, 0);
+  for (int m = 0; m < db.num_models(); ++m) class_views[db.model(m).class_index] += db.model(m).num_views;
+  const size_t voters = std::min<size_t>(fine.ranked.size(), std::max(0, options.class_vote_views));
+  double total = 0.0;
+  for (size_t i = 0; i < voters; ++i) {
+    const int c = db.model(db.view(fine.ranked[i].view).model).class_index;
+    const double share = static_cast<double>(class_views[c]) / std::max(1, db.num_views());
+    const double vote = 1.0 / (static_cast<double>(i) + 1.0) / std::max(1e-9, share);
+    scores[c].vote += vote;
+    total += vote;
+    evidence[c] = 1;
+  }
+  if (total > 0.0) {
+    for (ClassScore& score : scores) score.vote /= total;
+  }
+  // Softmax over the classes with evidence.
+  std::vector<ClassScore> out;
+  for (int c = 0; c < num_classes; ++c) {
+    if (evidence[c]) out.push_back(scores[c]);
+  }
+  if (out.empty()) return out;
+  const double temperature = std::max(1e-6, options.class_temperature);
+  std::vector<double> z(out.size());
+  for (size_t i = 0; i < out.size(); ++i) {
+    z[i] = (out[i].verification + options.class_vote_weight * out[i].vote) / temperature;
+  }
+  const double z_max = *std::max_element(z.begin(), z.end());
+  double sum = 0.0;
+  for (size_t i = 0; i < out.size(); ++i) sum += (out[i].probability = std::exp(z[i] - z_max));
+  for (ClassScore& score : out) score.probability /= sum;
+  std::stable_sort(out.begin(), out.end(), [](const ClassScore& a, const ClassScore& b) {
+    return a.probability > b.probability;
+  });
+  return out;
+}
+
 Assembly AssembleSuggestions(StageContext* context, const FineResult& fine,
                              std::vector<PoseCandidate> posed, const RecognitionOptions& options) {
   const AssemblyOptions& assembly = options.assembly;
+  Assembly result;
+  if (assembly.class_ranking) {
+    result.classes = ScoreClasses(*context, fine, posed, assembly);
+    if (result.classes.size() >= 2 &&
+        result.classes[0].probability - result.classes[1].probability <=
+            assembly.ambiguity_margin) {
+      result.ambiguous_with = result.classes[1].class_name;
+    }
+  }
   if (assembly.rerank_by_alignment) {
     const double penalty = assembly.ranking_penalty;
     std::stable_sort(posed.begin(), posed.end(),
@@ -501,9 +581,16 @@ Assembly AssembleSuggestions(StageContext* context, const FineResult& fine,
                               b.alignment.score - penalty * b.ranked.combined;
                      });
   }
-  Assembly result;
+  std::vector<Suggestion> ordered = OrderSuggestions(*context, fine, posed, assembly);
+  if (!result.classes.empty()) {
+    // The best suggestion of the most probable class first; the rest keep their order.
+    const int winner = result.classes.front().class_index;
+    const auto first = std::find_if(ordered.begin(), ordered.end(),
+                                    [winner](const Suggestion& s) { return s.class_index == winner; });
+    if (first != ordered.end()) std::rotate(ordered.begin(), first, first + 1);
+  }
   std::vector<int> seen;
-  for (Suggestion& s : OrderSuggestions(*context, fine, posed, assembly)) {
+  for (Suggestion& s : ordered) {
     if (static_cast<int>(result.suggestions.size()) >= options.top_k) break;
     int key = -1;
     if (options.grouping == SuggestionGrouping::kModel) key = s.model;

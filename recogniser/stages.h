@@ -17,6 +17,7 @@
 // is deterministic: the same inputs give bit-identical outputs.
 #pragma once
 
+#include <string>
 #include <unordered_map>
 #include <vector>
 
@@ -157,13 +158,23 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
 std::vector<PoseCandidate> EstimatePoses(StageContext* context, const FineResult& fine,
                                          const RecognitionOptions& options);
 
+// Class scores (AssemblyOptions::class_*) from the refined candidates among `posed` and
+// the first class_vote_views views of the fine ranking: every class with evidence, most
+// probable first (ties by class index).
+std::vector<ClassScore> ScoreClasses(const StageContext& context, const FineResult& fine,
+                                     const std::vector<PoseCandidate>& posed,
+                                     const AssemblyOptions& options);
+
 struct Assembly {
   std::vector<Suggestion> suggestions;  // best first, at most top_k
   bool recognised = false;              // see RecognitionResult::recognised
+  std::vector<ClassScore> classes;      // see RecognitionResult::classes
+  std::string ambiguous_with;           // see RecognitionResult::ambiguous_with
 };
 // Posed candidates first (re-ranked by AssemblyOptions), then the rest of the fine
-// ranking; grouped, cut to top_k; unposed suggestions get their best roll; the
-// verification threshold decides `recognised`.
+// ranking; with class ranking the best suggestion of the most probable class moved to the
+// front; grouped, cut to top_k; unposed suggestions get their best roll; the verification
+// threshold decides `recognised`.
 Assembly AssembleSuggestions(StageContext* context, const FineResult& fine,
                              std::vector<PoseCandidate> posed, const RecognitionOptions& options);
 

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Reproduces the recogniser's evaluation figures (README "Recognition"): both protocols,
-# our method beside the thesis preset. Heavy (~40 min on 2 cores): not part of CI.
+# our method beside the thesis preset. Heavy (~50 min on 2 cores): not part of CI.
 #   scripts/evaluate.sh [SOPE] [OUT] [DATA]
 set -euo pipefail
 sope=${1:-build/app/sope}
@@ -18,9 +18,16 @@ mkdir -p "$out"
   --grouping class --out "$out/class_sope"
 "$sope" eval --db "$out/class_thesis.sopedb" --models "$out/held_out" --queries-per-model 6 \
   --method thesis --grouping class --out "$out/class_thesis"
-# The same queries scanned through the full pipeline on the virtual rig (no occluder).
+# Before class-aware ranking (issue 16), the same database and queries.
 "$sope" eval --db "$out/class.sopedb" --models "$out/held_out" --queries-per-model 6 \
-  --grouping class --scan-pipeline --out "$out/class_sope_scan"
+  --grouping class --no-class-ranking --out "$out/class_sope_no_class_ranking"
+# The same queries scanned through the full pipeline on the virtual rig, with the same
+# occluder (its share of the scanned points hidden), with and without class-aware ranking.
+"$sope" eval --db "$out/class.sopedb" --models "$out/held_out" --queries-per-model 6 \
+  --grouping class --scan-pipeline --scan-occlusion --out "$out/class_sope_scan"
+"$sope" eval --db "$out/class.sopedb" --models "$out/held_out" --queries-per-model 6 \
+  --grouping class --scan-pipeline --scan-occlusion --no-class-ranking \
+  --out "$out/class_sope_scan_no_class_ranking"
 
 # Instance protocol on the shared meshes (YCB + classic), when present.
 if [ -d "$data/meshes" ]; then

@@ -156,8 +156,16 @@ void ScoreOutcome(const Database& db, const EvalModel& model, const SyntheticQue
   outcome.score = best.score;
   outcome.flagged_fraction = result.flagged_fraction;
   outcome.timing = result.timing;
+  std::vector<std::string> classes_seen;  // distinct classes in suggestion order
   for (size_t s = 0; s < result.suggestions.size(); ++s) {
     const Suggestion& suggestion = result.suggestions[s];
+    if (std::find(classes_seen.begin(), classes_seen.end(), suggestion.class_name) ==
+        classes_seen.end()) {
+      classes_seen.push_back(suggestion.class_name);
+      if (classes_seen.size() <= 2 && suggestion.class_name == model.class_name) {
+        outcome.class_top2 = true;
+      }
+    }
     const bool same_model = model.db_model >= 0 && suggestion.model == model.db_model;
     const bool same_class = suggestion.class_name == model.class_name;
     if (s == 0) {
@@ -305,8 +313,10 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
     patterns.projector_height = rig_calibration.projector.height;
   }
   report.query_image_width = camera.width;
+  // Scanned queries get no occluder, or (occlude_scans) the same as depth-rendered ones
+  // (same draws): the scanned object cloud loses the points beyond the occluder edge.
   SyntheticQueryOptions query_options = options.query;
-  if (options.through_scan) query_options.max_occlusion = 0.0;
+  if (options.through_scan && !options.occlude_scans) query_options.max_occlusion = 0.0;
   DepthRenderer renderer(camera);
   const Recogniser recogniser(db);
   std::mt19937_64 rng(options.seed);
@@ -358,6 +368,13 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
                          scanned.status == ScanStatus::kNoSuggestion,
                      "{}", scanned.message);
           result = scanned.recognition;
+          if (query.occluded_fraction > 0.0) {
+            PointCloud occluded;
+            occluded.points = HideBeyondEdge(scanned.object.points, query.occluded_fraction,
+                                             query.occluder_angle);
+            outcome.cloud_points = static_cast<int>(occluded.size());
+            result = recogniser.Recognise(occluded, options.recognition);
+          }
         } else {
           result = recogniser.Recognise(query.cloud, options.recognition);
         }
@@ -397,6 +414,23 @@ double EvalReport::MssdAverageRecall() const {
 double EvalReport::MspdAverageRecall() const {
   return BopAverageRecall(outcomes, &QueryOutcome::mspd_px,
                           MspdThresholds(query_image_width > 0 ? query_image_width : 640));
+}
+
+double EvalReport::ClassTop2() const {
+  return Fraction(outcomes, [](const QueryOutcome& o) { return o.class_top2; });
+}
+
+std::vector<std::pair<std::string, int>> EvalReport::ConfusablePairs() const {
+  std::map<std::string, int> counts;
+  for (const QueryOutcome& o : outcomes) {
+    if (o.error.empty() && o.predicted_class != o.truth_class) {
+      ++counts[o.truth_class + " → " + o.predicted_class];
+    }
+  }
+  std::vector<std::pair<std::string, int>> pairs(counts.begin(), counts.end());
+  std::stable_sort(pairs.begin(), pairs.end(),
+                   [](const auto& a, const auto& b) { return a.second > b.second; });
+  return pairs;
 }
 
 double EvalReport::ModelTop1() const {
@@ -528,8 +562,14 @@ std::string EvalReport::BriefReport() const {
         Percent(AddsSuccess()), options.rotation_threshold_deg, Percent(RotationSuccess()),
         Percent(MssdAverageRecall()), Percent(MspdAverageRecall()));
   } else {
-    text += fmt::format("  class top-1 {}, top-{} {}\n", Percent(ClassTop1()),
-                        options.recognition.top_k, Percent(ClassTopK()));
+    text += fmt::format("  class top-1 {}, top-2 {}, top-{} {}\n", Percent(ClassTop1()),
+                        Percent(ClassTop2()), options.recognition.top_k, Percent(ClassTopK()));
+    std::string pairs;
+    for (const auto& [pair, count] : ConfusablePairs()) {
+      if (!pairs.empty()) pairs += ", ";
+      pairs += fmt::format("{} ×{}", pair, count);
+    }
+    if (!pairs.empty()) text += "  confusions: " + pairs + "\n";
   }
   text += fmt::format(
       "  median viewpoint error {}°; flagged {} of the database (mean, max {})\n"
@@ -559,15 +599,19 @@ std::string EvalReport::ToMarkdown() const {
   if (options.through_scan) {
     md += "Queries scanned through the full pipeline: the model before a backdrop on the "
           "virtual rig, Gray code rendered, decoded, triangulated, cut to the object by a "
-          "range band (no occluder).\n\n";
+          "range band";
+    md += options.occlude_scans ? "; then the query's occluder hides its share of the scanned "
+                                  "points.\n\n"
+                                : " (no occluder).\n\n";
   }
   md += "| measure | value |\n|---|---|\n";
   if (options.protocol == EvalProtocol::kInstance) {
     md += fmt::format("| model top-1 | {} |\n| model top-{} | {} |\n", Percent(ModelTop1()), k,
                       Percent(ModelTopK()));
   }
-  md += fmt::format("| class top-1 | {} |\n| class top-{} | {} |\n", Percent(ClassTop1()), k,
-                    Percent(ClassTopK()));
+  md += fmt::format("| class top-1 | {} |\n| class top-2 (first two classes suggested) | {} "
+                    "|\n| class top-{} | {} |\n",
+                    Percent(ClassTop1()), Percent(ClassTop2()), k, Percent(ClassTopK()));
   md += fmt::format("| median viewpoint error (correct {}) | {}° |\n",
                     options.protocol == EvalProtocol::kInstance ? "model" : "class",
                     Fixed(MedianViewpointErrorDeg(), 2));
@@ -610,6 +654,11 @@ std::string EvalReport::ToMarkdown() const {
     }
     if (n > 0) md += fmt::format("| {} | {} | {} | {} |\n", label, n, top1, topk);
   }
+  const std::vector<std::pair<std::string, int>> pairs = ConfusablePairs();
+  if (!pairs.empty()) {
+    md += "\nConfusable classes (truth → first suggestion, queries):\n\n";
+    for (const auto& [pair, count] : pairs) md += fmt::format("- {}: {}\n", pair, count);
+  }
   if (!skipped_models.empty()) {
     md += "\nSkipped models:\n\n";
     for (const std::string& s : skipped_models) md += "- " + s + "\n";
@@ -624,6 +673,7 @@ std::string EvalReport::ToJson() const {
   j["protocol"] = ToString(options.protocol);
   j["method"] = options.method_name;
   j["through_scan"] = options.through_scan;
+  j["occlude_scans"] = options.occlude_scans;
   j["database"] = {{"path", database_path},
                    {"models", database_models},
                    {"views", database_views},
@@ -642,6 +692,10 @@ std::string EvalReport::ToJson() const {
   j["model_topk"] = ModelTopK();
   j["class_top1"] = ClassTop1();
   j["class_topk"] = ClassTopK();
+  j["class_top2"] = ClassTop2();
+  nlohmann::json pairs = nlohmann::json::array();
+  for (const auto& [pair, count] : ConfusablePairs()) pairs.push_back({{"pair", pair}, {"queries", count}});
+  j["confusable_pairs"] = pairs;
   j["median_viewpoint_error_deg"] = JsonNumber(MedianViewpointErrorDeg());
   j["median_rotation_error_deg"] = JsonNumber(MedianRotationErrorDeg());
   j["median_translation_error_mm"] = JsonNumber(MedianTranslationErrorMm());
@@ -677,6 +731,7 @@ std::string EvalReport::ToJson() const {
     q["model_topk"] = o.model_topk;
     q["class_top1"] = o.class_top1;
     q["class_topk"] = o.class_topk;
+    q["class_top2"] = o.class_top2;
     q["refined"] = o.refined;
     q["score"] = o.score;
     q["truth_rank"] = o.truth_rank;

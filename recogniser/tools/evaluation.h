@@ -19,6 +19,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "core/mesh.h"
@@ -74,6 +75,10 @@ struct EvalOptions {
   // (recogniser/tools/scan_recognition.h). No occluder (query.max_occlusion is ignored); the
   // query camera is the rig's camera. ~1 s of rendering per query.
   bool through_scan = false;
+  // With through_scan: the query's occluder (query.max_occlusion, the same draws as the
+  // depth-rendered protocol) hides its share of the scanned object's points (HideBeyondEdge:
+  // the occluder segmented away, as a range band would). false: no occluder.
+  bool occlude_scans = false;
   void Check() const;
 };
 
@@ -90,6 +95,7 @@ struct QueryOutcome {
   std::string predicted_class;
   bool model_top1 = false, model_topk = false;
   bool class_top1 = false, class_topk = false;
+  bool class_top2 = false;  // the truth class among the first two classes suggested
   bool refined = false;
   double score = 0.0;
   // The true model's (instance) or class's (class) first place among the suggestions
@@ -135,6 +141,10 @@ struct EvalReport {
   double ModelTopK() const;
   double ClassTop1() const;
   double ClassTopK() const;
+  double ClassTop2() const;
+  // The off-diagonal cells of the class confusion (truth → first suggestion), most frequent
+  // first: "truth → predicted" with their counts.
+  std::vector<std::pair<std::string, int>> ConfusablePairs() const;
   double AddsSuccess() const;
   // instance: rotation error (modulo symmetry) < rotation_threshold_deg (wrong model = fail).
   double RotationSuccess() const;  // instance: ADD-S < adds_fraction · diameter (wrong model = fail)

@@ -182,6 +182,66 @@ TEST_F(EvaluationTest, ThroughTheScanPipeline) {
   EXPECT_NE(report.ToMarkdown().find("full pipeline"), std::string::npos);
 }
 
+// Issue 16: the scanned class protocol with occlusion — the query's occluder hides its
+// share of the scanned object's points.
+TEST_F(EvaluationTest, ScannedQueriesCanBeOccluded) {
+  std::vector<EvalModel> models = InstanceModels(*db_);
+  models.resize(1);
+  EvalOptions options;
+  options.queries_per_model = 2;
+  options.through_scan = true;
+  options.occlude_scans = true;
+  options.query.max_occlusion = 0.3;
+  const EvalReport report = Evaluate(*db_, models, options);
+  ASSERT_EQ(report.queries(), 2);
+  for (const QueryOutcome& o : report.outcomes) {
+    ASSERT_TRUE(o.error.empty()) << o.error;
+    // The depth-rendered draw of the occluded share (≤ 0.3), applied to the scanned cloud.
+    EXPECT_GT(o.occluded_fraction, 0.0);
+    EXPECT_LE(o.occluded_fraction, 0.3 + 1e-9);
+    EXPECT_GT(o.cloud_points, 500);
+  }
+  EXPECT_NE(report.ToMarkdown().find("occluder hides"), std::string::npos);
+}
+
+// HideBeyondEdge hides exactly the requested share, the points farthest along the edge.
+TEST(HideBeyondEdge, HidesTheShareFarthestAlongTheEdge) {
+  std::vector<Eigen::Vector3f> points;
+  for (int i = 0; i < 100; ++i) points.emplace_back(0.001f * i, 0.0f, 1.0f);  // x/z = i / 1000
+  const std::vector<Eigen::Vector3f> kept = HideBeyondEdge(points, 0.25, 0.0);  // edge along +x
+  ASSERT_EQ(kept.size(), 75u);
+  for (const Eigen::Vector3f& p : kept) EXPECT_LT(p.x(), 0.0745f);
+  const std::vector<Eigen::Vector3f> other = HideBeyondEdge(points, 0.25, M_PI);  // along −x
+  ASSERT_EQ(other.size(), 75u);
+  for (const Eigen::Vector3f& p : other) EXPECT_GT(p.x(), 0.0245f);
+  EXPECT_EQ(HideBeyondEdge(points, 0.0, 0.0).size(), 100u);
+}
+
+// Class top-2 and the confusable pairs, from constructed outcomes.
+TEST(EvalReportClasses, TopTwoAndConfusablePairs) {
+  EvalReport report;
+  const auto add = [&](const char* truth, const char* predicted, bool top2) {
+    QueryOutcome o;
+    o.truth_class = truth;
+    o.predicted_class = predicted;
+    o.class_top1 = o.truth_class == o.predicted_class;
+    o.class_top2 = top2;
+    report.outcomes.push_back(o);
+  };
+  add("can", "glass", true);
+  add("can", "glass", false);
+  add("glass", "mug", true);
+  add("mug", "mug", true);
+  EXPECT_DOUBLE_EQ(report.ClassTop1(), 0.25);
+  EXPECT_DOUBLE_EQ(report.ClassTop2(), 0.75);
+  const std::vector<std::pair<std::string, int>> pairs = report.ConfusablePairs();
+  ASSERT_EQ(pairs.size(), 2u);
+  EXPECT_EQ(pairs[0].first, "can → glass");
+  EXPECT_EQ(pairs[0].second, 2);
+  EXPECT_EQ(pairs[1].first, "glass → mug");
+  EXPECT_EQ(pairs[1].second, 1);
+}
+
 TEST_F(EvaluationTest, UnknownClassesAndBadOptions) {
   const std::string other = scratch_->File("other");
   WriteProceduralModels(other, 1, 7);

@@ -24,6 +24,29 @@ void SyntheticQueryOptions::Check() const {
              "synthetic query: max_occlusion must be in [0, 1), got {}", max_occlusion);
 }
 
+std::vector<Eigen::Vector3f> HideBeyondEdge(const std::vector<Eigen::Vector3f>& points,
+                                            double fraction, double edge_angle) {
+  const size_t n = points.size();
+  if (n == 0 || fraction <= 0.0) return points;
+  const Eigen::Vector2f edge(static_cast<float>(std::cos(edge_angle)),
+                             static_cast<float>(std::sin(edge_angle)));
+  std::vector<float> along(n);
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3f& p = points[i];
+    along[i] = edge.dot(Eigen::Vector2f(p.x() / p.z(), p.y() / p.z()));
+  }
+  std::vector<float> sorted = along;
+  const size_t keep = n - static_cast<size_t>(std::min(1.0, fraction) * n);
+  std::nth_element(sorted.begin(), sorted.begin() + std::min(keep, n - 1), sorted.end());
+  const float threshold = sorted[std::min(keep, n - 1)];
+  std::vector<Eigen::Vector3f> kept;
+  kept.reserve(keep);
+  for (size_t i = 0; i < n; ++i) {
+    if (along[i] < threshold || keep == n) kept.push_back(points[i]);
+  }
+  return kept;
+}
+
 SyntheticQuery RenderSyntheticQuery(DepthRenderer* renderer, const CameraModel& camera,
                                     const Eigen::Vector3d& center_in_model, double bounding_radius,
                                     const SyntheticQueryOptions& options, std::mt19937_64* rng) {
@@ -64,25 +87,13 @@ SyntheticQuery RenderSyntheticQuery(DepthRenderer* renderer, const CameraModel& 
     p *= static_cast<float>((range + sigma * gaussian(*rng)) / range);
   }
   // Occluder: hide the points beyond a random edge in the image.
-  const size_t n = rendered.size();
   query.occluded_fraction = options.max_occlusion * uniform(*rng);
-  if (n > 0 && query.occluded_fraction > 0.0) {
-    const double edge_angle = 2.0 * kPi * uniform(*rng);
-    const Eigen::Vector2f edge(static_cast<float>(std::cos(edge_angle)),
-                               static_cast<float>(std::sin(edge_angle)));
-    std::vector<float> along(n);
-    for (size_t i = 0; i < n; ++i) {
-      const Eigen::Vector3f& p = rendered.points[i];
-      along[i] = edge.dot(Eigen::Vector2f(p.x() / p.z(), p.y() / p.z()));
-    }
-    std::vector<float> sorted = along;
-    const size_t keep = n - static_cast<size_t>(query.occluded_fraction * n);
-    std::nth_element(sorted.begin(), sorted.begin() + std::min(keep, n - 1), sorted.end());
-    const float threshold = sorted[std::min(keep, n - 1)];
-    for (size_t i = 0; i < n; ++i) {
-      if (along[i] < threshold || keep == n) query.cloud.points.push_back(rendered.points[i]);
-    }
-    query.occluded_fraction = 1.0 - static_cast<double>(query.cloud.size()) / n;
+  if (!rendered.points.empty() && query.occluded_fraction > 0.0) {
+    query.occluder_angle = 2.0 * kPi * uniform(*rng);
+    query.cloud.points = HideBeyondEdge(rendered.points, query.occluded_fraction,
+                                        query.occluder_angle);
+    query.occluded_fraction =
+        1.0 - static_cast<double>(query.cloud.size()) / rendered.points.size();
   } else {
     query.cloud.points = std::move(rendered.points);
   }

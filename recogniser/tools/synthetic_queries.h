@@ -17,6 +17,7 @@
 
 #include <cstdint>
 #include <random>
+#include <vector>
 
 #include "core/camera_model.h"
 #include "core/mesh.h"
@@ -47,7 +48,15 @@ struct SyntheticQuery {
   double distance = 0.0;     // metres
   double roll = 0.0;         // radians
   double occluded_fraction = 0.0;
+  double occluder_angle = 0.0;  // radians: direction of the occluder edge (when occluded)
 };
+
+// The points (camera frame) that an occluder edge across the image hides not: the edge's
+// normal in the image plane at `edge_angle`, the `fraction` of the points farthest along
+// it hidden (as RenderSyntheticQuery occludes; the scan protocol applies the same occluder
+// to a scanned cloud).
+std::vector<Eigen::Vector3f> HideBeyondEdge(const std::vector<Eigen::Vector3f>& points,
+                                            double fraction, double edge_angle);
 
 // A query of the mesh last given to `renderer` (SetMesh; model frame, metres, viewpoints
 // around `center_in_model`, the model within `bounding_radius` metres of it), seen by
