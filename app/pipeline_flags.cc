@@ -73,6 +73,10 @@ void DecoderFlags::Add(CLI::App& app) {
                  "Phase sets: coarse and fine coordinates may differ by this fraction of the "
                  "fine period, else the pixel is invalid")
       ->capture_default_str();
+  app.add_option("--gray-subpixel", gray_subpixel,
+                 "Gray codes: off (stripe centres, integer) or edges (sub-pixel from the two "
+                 "stripe edges around each pixel)")
+      ->capture_default_str();
   app.add_flag("--no-gamma-correction", no_gamma_correction,
                "Phase sets: ignore the calibration's projector_response (e.g. for patterns "
                "pre-distorted with --pattern-gamma)");
@@ -83,6 +87,7 @@ void DecoderFlags::Add(CLI::App& app) {
 DecoderOptions DecoderFlags::ToOptions() const {
   DecoderOptions result = options;
   result.bit_decision = BitDecisionFromString(mode);
+  result.gray_subpixel = GraySubpixelFromString(gray_subpixel);
   if (no_gamma_correction) result.phase.use_calibration_response = false;
   result.Check();
   return result;

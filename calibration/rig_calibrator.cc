@@ -498,8 +498,9 @@ std::optional<BoardObservation> RigCalibrator::AddFrameSet(const FrameSet& frame
     detection_seconds_ += internal::SecondsSince(start);
     return std::nullopt;
   }
-  CorrespondenceMap map = Decode(frames, options_.decoder);
-  if (options_.subpixel_codes) map = RefineGrayCodeSubpixel(frames, map);
+  DecoderOptions decoder = options_.decoder;
+  decoder.gray_subpixel = options_.subpixel_codes ? GraySubpixel::kEdges : GraySubpixel::kOff;
+  const CorrespondenceMap map = Decode(frames, decoder);
   BoardObservation observation;
   observation.name = name;
   observation.camera_corners = *corners;

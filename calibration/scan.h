@@ -11,7 +11,12 @@
 namespace sope {
 
 struct ScanOptions {
-  DecoderOptions decoder;
+  // Scans refine Gray codes to sub-pixel by default (decoder/gray_refine.h).
+  DecoderOptions decoder = [] {
+    DecoderOptions options;
+    options.gray_subpixel = GraySubpixel::kEdges;
+    return options;
+  }();
   TriangulationOptions triangulation;
   void Check() const {
     decoder.Check();

@@ -17,6 +17,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "decoder/decoder_internal.h"
+#include "decoder/gray_refine.h"
 #include "decoder/phase_decoder.h"
 #include "projector/patterns.h"
 
@@ -859,6 +860,8 @@ void DecoderOptions::Check() const {
   SOPE_CHECK(bit_decision == BitDecision::kAuto || bit_decision == BitDecision::kThreshold ||
                  bit_decision == BitDecision::kRobust,
              "invalid bit_decision {}", static_cast<int>(bit_decision));
+  SOPE_CHECK(gray_subpixel == GraySubpixel::kOff || gray_subpixel == GraySubpixel::kEdges,
+             "invalid gray_subpixel {}", static_cast<int>(gray_subpixel));
   phase.Check();
 }
 
@@ -926,6 +929,7 @@ void Decode(const FrameSet& frame_set, const DecoderOptions& options, Correspond
     internal::RemoveSpeckles(options.min_consistent_neighbours,
                              static_cast<float>(options.neighbour_tolerance_px), map);
   }
+  if (options.gray_subpixel == GraySubpixel::kEdges) RefineGraySubpixel(frame_set, map);
 }
 
 cv::Mat ColorizeCoordinate(const cv::Mat& coordinate, int projector_size) {
@@ -1276,6 +1280,12 @@ void IncrementalDecoder::Finish(CorrespondenceMap* map) {
   }
   d.Progress();
   d.FinishIncremental(map);
+  if (d.options.gray_subpixel == GraySubpixel::kEdges) {
+    FrameSet frames;
+    frames.manifest = d.manifest;
+    frames.images = d.images;
+    RefineGraySubpixel(frames, map);
+  }
 }
 
 CorrespondenceMap IncrementalDecoder::Finish() {

@@ -8,6 +8,7 @@
 #include <opencv2/core/mat.hpp>
 
 #include "core/frame_set.h"
+#include "decoder/gray_subpixel_mode.h"
 #include "decoder/phase_options.h"
 
 namespace sope {
@@ -62,6 +63,11 @@ struct DecoderOptions {
   double neighbour_tolerance_px = 2.0;
   // Threads for the decode loop; 1 = single-threaded.
   int num_threads = 1;
+  // Gray-coded axes: block centres (the decoder's own output, comparable with OpenCV's) or
+  // sub-pixel coordinates from the stripe edges (decoder/gray_refine.h; after the speckle
+  // filter), which remove the projector-pixel steps of the depth. Scans (ScanOptions, the
+  // CLI's --gray-subpixel) and calibration default to kEdges.
+  GraySubpixel gray_subpixel = GraySubpixel::kOff;
   // Sets with phase frames (role `phase`): decoder/phase_decoder.h. min_contrast applies
   // to their white − black when they have those frames; the speckle filter and threads too.
   PhaseDecoderOptions phase;
