@@ -11,10 +11,12 @@
 namespace sope {
 
 struct ScanOptions {
-  // Scans refine Gray codes to sub-pixel by default (decoder/gray_refine.h).
+  // Scans refine Gray codes to sub-pixel (decoder/gray_refine.h) and fill pixels from
+  // consistent neighbours (decoder/code_consistency.h) by default.
   DecoderOptions decoder = [] {
     DecoderOptions options;
     options.gray_subpixel = GraySubpixel::kEdges;
+    options.consistency.enabled = true;
     return options;
   }();
   TriangulationOptions triangulation;

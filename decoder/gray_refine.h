@@ -31,6 +31,6 @@ namespace sope {
 // phase frames (Gray + phase: already sub-pixel), and pixels whose bracketing
 // edge is missing (the ends of the code range) keep their values. Throws
 // sope::Error when `map` does not belong to `frames` (size).
-void RefineGraySubpixel(const FrameSet &frames, CorrespondenceMap *map);
+void RefineGraySubpixel(const FrameSet& frames, CorrespondenceMap* map);
 
-} // namespace sope
+}  // namespace sope

@@ -17,6 +17,6 @@ enum class GraySubpixel {
   kEdges,
 };
 std::string ToString(GraySubpixel mode);
-GraySubpixel GraySubpixelFromString(const std::string &text); // "off", "edges"
+GraySubpixel GraySubpixelFromString(const std::string& text);  // "off", "edges"
 
-} // namespace sope
+}  // namespace sope
