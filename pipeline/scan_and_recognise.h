@@ -87,6 +87,9 @@ class ScanAndRecogniseController {
   // `source` and `database` must outlive the controller.
   ScanAndRecogniseController(const ScanAndRecogniseOptions& options, ScanSource* source,
                              const Database& database);
+  ~ScanAndRecogniseController();
+  ScanAndRecogniseController(const ScanAndRecogniseController&) = delete;
+  ScanAndRecogniseController& operator=(const ScanAndRecogniseController&) = delete;
   // Runs the scans. Returns how many were done. An interruption (options.cancel) during a
   // capture ends the run quietly once at least one scan of a multi-scan run is done; else
   // it throws like any capture error.
@@ -102,6 +105,9 @@ class ScanAndRecogniseController {
   Recogniser recogniser_;
   std::unique_ptr<Triangulator> triangulator_;  // per calibration (undistortion tables)
   RigCalibration triangulator_calibration_;
+  // Decoding during the capture (sources that capture: the frame sink's IncrementalDecoder).
+  struct LiveDecode;
+  std::unique_ptr<LiveDecode> live_decode_;
 };
 
 // The DESIGN.md recognition result of the scan (empty recognition: no "class"…) plus
