@@ -77,9 +77,9 @@ void DecoderFlags::Add(CLI::App& app) {
                  "Gray codes: off (stripe centres, integer) or edges (sub-pixel from the two "
                  "stripe edges around each pixel)")
       ->capture_default_str();
-  app.add_flag("--no-consistency", no_consistency,
-               "Code sets: decode each pixel on its own (no filling of undecided pixels from "
-               "their decoded neighbours and their own bit margins)");
+  app.add_flag("--consistency", consistency,
+               "Code sets: also decode pixels left undecided from their own bit margins within "
+               "the range their decoded neighbours predict (dim, grazing surfaces)");
   app.add_flag("--no-gamma-correction", no_gamma_correction,
                "Phase sets: ignore the calibration's projector_response (e.g. for patterns "
                "pre-distorted with --pattern-gamma)");
@@ -91,7 +91,7 @@ DecoderOptions DecoderFlags::ToOptions() const {
   DecoderOptions result = options;
   result.bit_decision = BitDecisionFromString(mode);
   result.gray_subpixel = GraySubpixelFromString(gray_subpixel);
-  result.consistency.enabled = !no_consistency;
+  result.consistency.enabled = consistency;
   if (no_gamma_correction) result.phase.use_calibration_response = false;
   result.Check();
   return result;

@@ -35,7 +35,7 @@ struct DecoderFlags {
   DecoderOptions options;
   std::string mode = "auto";
   std::string gray_subpixel = "edges";
-  bool no_consistency = false;
+  bool consistency = false;
   bool no_gamma_correction = false;
   void Add(CLI::App& app);
   DecoderOptions ToOptions() const;

@@ -11,12 +11,11 @@
 namespace sope {
 
 struct ScanOptions {
-  // Scans refine Gray codes to sub-pixel (decoder/gray_refine.h) and fill pixels from
-  // consistent neighbours (decoder/code_consistency.h) by default.
+  // Scans refine Gray codes to sub-pixel (decoder/gray_refine.h) by default; the spatial
+  // code consistency (decoder/code_consistency.h) is opt-in.
   DecoderOptions decoder = [] {
     DecoderOptions options;
     options.gray_subpixel = GraySubpixel::kEdges;
-    options.consistency.enabled = true;
     return options;
   }();
   TriangulationOptions triangulation;

@@ -70,7 +70,8 @@ struct DecoderOptions {
   GraySubpixel gray_subpixel = GraySubpixel::kOff;
   // Spatial code consistency (decoder/code_consistency.h): pixels left invalid are decoded
   // from their own bit margins within the range their decoded neighbours predict. Off by
-  // default (the per-pixel decode, comparable with OpenCV's); on in ScanOptions.
+  // default (the per-pixel decode, comparable with OpenCV's; `--consistency` in the CLI): it
+  // can still admit a wrong code at occlusion edges of small rigs (tests/cli_test's box scene).
   struct Consistency {
     bool enabled = false;
     // Minimum white − black contrast of a filled pixel, grey levels (8-bit scale).
