@@ -73,6 +73,13 @@ void DecoderFlags::Add(CLI::App& app) {
                  "Phase sets: coarse and fine coordinates may differ by this fraction of the "
                  "fine period, else the pixel is invalid")
       ->capture_default_str();
+  app.add_option("--gray-subpixel", gray_subpixel,
+                 "Gray codes: off (stripe centres, integer) or edges (sub-pixel from the two "
+                 "stripe edges around each pixel)")
+      ->capture_default_str();
+  app.add_flag("--consistency", consistency,
+               "Code sets: also decode pixels left undecided from their own bit margins within "
+               "the range their decoded neighbours predict (dim, grazing surfaces)");
   app.add_flag("--no-gamma-correction", no_gamma_correction,
                "Phase sets: ignore the calibration's projector_response (e.g. for patterns "
                "pre-distorted with --pattern-gamma)");
@@ -83,6 +90,8 @@ void DecoderFlags::Add(CLI::App& app) {
 DecoderOptions DecoderFlags::ToOptions() const {
   DecoderOptions result = options;
   result.bit_decision = BitDecisionFromString(mode);
+  result.gray_subpixel = GraySubpixelFromString(gray_subpixel);
+  result.consistency.enabled = consistency;
   if (no_gamma_correction) result.phase.use_calibration_response = false;
   result.Check();
   return result;

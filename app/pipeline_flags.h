@@ -34,6 +34,8 @@ struct PatternFlags {
 struct DecoderFlags {
   DecoderOptions options;
   std::string mode = "auto";
+  std::string gray_subpixel = "edges";
+  bool consistency = false;
   bool no_gamma_correction = false;
   void Add(CLI::App& app);
   DecoderOptions ToOptions() const;

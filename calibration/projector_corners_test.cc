@@ -337,5 +337,31 @@ TEST(RefineGrayCodeSubpixel, OmittedLowBitsAndBinaryCodes) {
                             "frames are 320x240");
 }
 
+// Decode's kEdges is this refinement, and refining a refined map changes nothing.
+TEST(RefineGrayCodeSubpixel, IsDecodesEdgeModeAndIdempotent) {
+  const Eigen::Vector2d scale(1.002, 1.07), offset(40.3, 30.7);
+  const FrameSet frames = AffineGrayCodeFrames(320, 240, scale, offset, PatternCode::kGray, 0);
+  const CorrespondenceMap refined = RefineGrayCodeSubpixel(frames, Decode(frames));
+  DecoderOptions edges;
+  edges.gray_subpixel = GraySubpixel::kEdges;
+  const CorrespondenceMap decoded = Decode(frames, edges);
+  const CorrespondenceMap twice = RefineGrayCodeSubpixel(frames, decoded);
+  const auto differing = [](const cv::Mat& a, const cv::Mat& b) {
+    int count = 0;
+    for (int y = 0; y < a.rows; ++y) {
+      for (int x = 0; x < a.cols; ++x) {
+        const float u = a.at<float>(y, x), v = b.at<float>(y, x);
+        count += !(u == v || (std::isnan(u) && std::isnan(v)));
+      }
+    }
+    return count;
+  };
+  EXPECT_GT(differing(refined.proj_x, Decode(frames).proj_x), 1000);  // it does refine
+  EXPECT_EQ(differing(decoded.proj_x, refined.proj_x), 0);
+  EXPECT_EQ(differing(decoded.proj_y, refined.proj_y), 0);
+  EXPECT_EQ(differing(twice.proj_x, decoded.proj_x), 0);
+  EXPECT_EQ(differing(twice.proj_y, decoded.proj_y), 0);
+}
+
 }  // namespace
 }  // namespace sope

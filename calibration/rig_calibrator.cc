@@ -19,6 +19,7 @@
 #include "calibration/reprojection_error.h"
 #include "core/error.h"
 #include "core/statistics.h"
+#include "decoder/phase_decoder.h"
 
 namespace sope {
 namespace internal {
@@ -475,13 +476,17 @@ std::optional<BoardObservation> RigCalibrator::AddFrameSet(const FrameSet& frame
     name = frames.directory.empty() ? fmt::format("view {}", views_.size()) : frames.directory;
   }
   const FrameSetManifest& manifest = frames.manifest;
-  SOPE_CHECK(manifest.HasAxis(PatternAxis::kX) && manifest.HasAxis(PatternAxis::kY),
+  // Code frames or phase groups (or both) on each axis.
+  const auto coded = [&](PatternAxis axis) {
+    return manifest.HasAxis(axis) || manifest.HasPhaseAxis(axis);
+  };
+  SOPE_CHECK(coded(PatternAxis::kX) && coded(PatternAxis::kY),
              "view {}: calibration needs both x and y codes, the frame set codes only {}", name,
-             manifest.HasAxis(PatternAxis::kX) ? "x" : "y");
+             coded(PatternAxis::kX) ? "x" : coded(PatternAxis::kY) ? "y" : "neither");
   const std::optional<size_t> white = manifest.Find(FrameRole::kWhite);
-  SOPE_CHECK(white.has_value(),
-             "view {}: the frame set has no white frame (needed to find the "
-             "board)",
+  SOPE_CHECK(white.has_value() || manifest.HasPhase(),
+             "view {}: the frame set has no white frame (needed to find the board) and no "
+             "phase frames to synthesise one from",
              name);
   CheckSizes({manifest.camera_width, manifest.camera_height, manifest.projector_width,
               manifest.projector_height},
@@ -489,17 +494,21 @@ std::optional<BoardObservation> RigCalibrator::AddFrameSet(const FrameSet& frame
   const auto start = std::chrono::steady_clock::now();
   View view;
   view.name = name;
+  // Without a white frame the board is found in the phase texture (mean + amplitude of the
+  // finest group: what a white frame would show).
+  const cv::Mat board_image = white ? frames.Image(*white) : SynthesizePhaseTexture(frames);
   const std::optional<std::vector<Eigen::Vector2d>> corners =
-      DetectBoardCorners(frames.Image(*white), board_, options_.detection);
+      DetectBoardCorners(board_image, board_, options_.detection);
   if (!corners) {
-    spdlog::warn("view {}: board {} not found in the white frame; view skipped", name,
-                 board_.PatternSizeString());
+    spdlog::warn("view {}: board {} not found in the {}; view skipped", name,
+                 board_.PatternSizeString(), white ? "white frame" : "phase texture");
     views_.push_back(view);
     detection_seconds_ += internal::SecondsSince(start);
     return std::nullopt;
   }
-  CorrespondenceMap map = Decode(frames, options_.decoder);
-  if (options_.subpixel_codes) map = RefineGrayCodeSubpixel(frames, map);
+  DecoderOptions decoder = options_.decoder;
+  decoder.gray_subpixel = options_.subpixel_codes ? GraySubpixel::kEdges : GraySubpixel::kOff;
+  const CorrespondenceMap map = Decode(frames, decoder);
   BoardObservation observation;
   observation.name = name;
   observation.camera_corners = *corners;

@@ -11,7 +11,13 @@
 namespace sope {
 
 struct ScanOptions {
-  DecoderOptions decoder;
+  // Scans refine Gray codes to sub-pixel (decoder/gray_refine.h) by default; the spatial
+  // code consistency (decoder/code_consistency.h) is opt-in.
+  DecoderOptions decoder = [] {
+    DecoderOptions options;
+    options.gray_subpixel = GraySubpixel::kEdges;
+    return options;
+  }();
   TriangulationOptions triangulation;
   void Check() const {
     decoder.Check();

@@ -17,6 +17,8 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "decoder/decoder_internal.h"
+#include "decoder/code_consistency.h"
+#include "decoder/gray_refine.h"
 #include "decoder/phase_decoder.h"
 #include "projector/patterns.h"
 
@@ -859,6 +861,25 @@ void DecoderOptions::Check() const {
   SOPE_CHECK(bit_decision == BitDecision::kAuto || bit_decision == BitDecision::kThreshold ||
                  bit_decision == BitDecision::kRobust,
              "invalid bit_decision {}", static_cast<int>(bit_decision));
+  SOPE_CHECK(gray_subpixel == GraySubpixel::kOff || gray_subpixel == GraySubpixel::kEdges,
+             "invalid gray_subpixel {}", static_cast<int>(gray_subpixel));
+  SOPE_CHECK(std::isfinite(consistency.min_contrast) && consistency.min_contrast >= 0.0 &&
+                 consistency.min_contrast <= 255.0,
+             "consistency.min_contrast {} must be in [0, 255] grey levels",
+             consistency.min_contrast);
+  SOPE_CHECK(consistency.window_radius >= 1 && consistency.window_radius <= 32,
+             "consistency.window_radius {} must be in 1..32", consistency.window_radius);
+  SOPE_CHECK(consistency.min_neighbours >= 1 &&
+                 consistency.min_neighbours <=
+                     (2 * consistency.window_radius + 1) * (2 * consistency.window_radius + 1) - 1,
+             "consistency.min_neighbours {} must be in 1..(window side² − 1)",
+             consistency.min_neighbours);
+  SOPE_CHECK(std::isfinite(consistency.search_radius_px) && consistency.search_radius_px > 0.0,
+             "consistency.search_radius_px {} must be > 0", consistency.search_radius_px);
+  SOPE_CHECK(std::isfinite(consistency.strong_bit_factor) && consistency.strong_bit_factor >= 1.0,
+             "consistency.strong_bit_factor {} must be >= 1", consistency.strong_bit_factor);
+  SOPE_CHECK(consistency.passes >= 1 && consistency.passes <= 100,
+             "consistency.passes {} must be in 1..100", consistency.passes);
   phase.Check();
 }
 
@@ -926,6 +947,8 @@ void Decode(const FrameSet& frame_set, const DecoderOptions& options, Correspond
     internal::RemoveSpeckles(options.min_consistent_neighbours,
                              static_cast<float>(options.neighbour_tolerance_px), map);
   }
+  if (options.consistency.enabled) FillFromConsistentNeighbours(frame_set, options, map);
+  if (options.gray_subpixel == GraySubpixel::kEdges) RefineGraySubpixel(frame_set, map);
 }
 
 cv::Mat ColorizeCoordinate(const cv::Mat& coordinate, int projector_size) {
@@ -1276,6 +1299,13 @@ void IncrementalDecoder::Finish(CorrespondenceMap* map) {
   }
   d.Progress();
   d.FinishIncremental(map);
+  if (d.options.gray_subpixel == GraySubpixel::kEdges || d.options.consistency.enabled) {
+    FrameSet frames;
+    frames.manifest = d.manifest;
+    frames.images = d.images;
+    if (d.options.consistency.enabled) FillFromConsistentNeighbours(frames, d.options, map);
+    if (d.options.gray_subpixel == GraySubpixel::kEdges) RefineGraySubpixel(frames, map);
+  }
 }
 
 CorrespondenceMap IncrementalDecoder::Finish() {

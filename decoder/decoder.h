@@ -8,6 +8,7 @@
 #include <opencv2/core/mat.hpp>
 
 #include "core/frame_set.h"
+#include "decoder/gray_subpixel_mode.h"
 #include "decoder/phase_options.h"
 
 namespace sope {
@@ -62,6 +63,38 @@ struct DecoderOptions {
   double neighbour_tolerance_px = 2.0;
   // Threads for the decode loop; 1 = single-threaded.
   int num_threads = 1;
+  // Gray-coded axes: block centres (the decoder's own output, comparable with OpenCV's) or
+  // sub-pixel coordinates from the stripe edges (decoder/gray_refine.h; after the speckle
+  // filter), which remove the projector-pixel steps of the depth. Scans (ScanOptions, the
+  // CLI's --gray-subpixel) and calibration default to kEdges.
+  GraySubpixel gray_subpixel = GraySubpixel::kOff;
+  // Spatial code consistency (decoder/code_consistency.h): pixels left invalid are decoded
+  // from their own bit margins within the range their decoded neighbours predict. Off by
+  // default (the per-pixel decode, comparable with OpenCV's; `--consistency` in the CLI): it
+  // can still admit a wrong code at occlusion edges of small rigs (tests/cli_test's box scene).
+  struct Consistency {
+    bool enabled = false;
+    // Minimum white − black contrast of a filled pixel, grey levels (8-bit scale).
+    double min_contrast = 4.0;
+    // Half side of the neighbour window, camera pixels, and the decoded neighbours needed.
+    int window_radius = 3;
+    int min_neighbours = 12;
+    // Candidates: blocks whose centre is within this of the neighbours' median, projector px.
+    double search_radius_px = 1.0;
+    // A bit whose margin exceeds this × min_bit_contrast must agree with the chosen code.
+    double strong_bit_factor = 3.0;
+    // The neighbours' coordinates must fit a plane (in camera x, y) to this RMS, projector px.
+    double max_plane_rms_px = 1.0;
+    // The chosen code's score must beat the runner-up's by this, grey levels (pattern −
+    // inverse units, summed over the bits where the two differ).
+    double min_lead = 3.0;
+    // ... and their gradient must not exceed this, projector px per camera px (beyond, a
+    // camera pixel sees several projector pixels and the code is a mixture).
+    double max_gradient = 1.5;
+    // Largest half side of the window a bit's margin is averaged over, camera pixels.
+    int max_average_radius = 2;
+    int passes = 8;
+  } consistency;
   // Sets with phase frames (role `phase`): decoder/phase_decoder.h. min_contrast applies
   // to their white − black when they have those frames; the speckle filter and threads too.
   PhaseDecoderOptions phase;

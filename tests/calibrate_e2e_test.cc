@@ -99,13 +99,16 @@ std::pair<double, double> DepthErrors(const SimulatedScan& scan, const RigCalibr
 // Renders the sequence (and a scene without a board) and calibrates. Everything that
 // needs this ~40 s of rendering is checked in one test, so CTest (one process per test)
 // renders it once.
-Calibrated RenderAndCalibrate() {
+// `board_patterns`: the views' pattern sequence (default: white, black, Gray code with
+// inverses).
+Calibrated RenderAndCalibrate(const PatternOptions& board_patterns = PatternOptions()) {
   Calibrated d;
   d.truth = DefaultRigCalibration();
   d.board = TestBoard();
   VirtualRig rig(d.truth);  // default sensor: noise, blur, gamma, 8-bit
   BoardSequenceOptions options;
   options.num_views = kViews;
+  options.patterns = board_patterns;
   RigCalibrator calibrator(d.board);
   d.cam_from_board = SimulateBoardSequence(
       rig, d.board, options, [&](int index, const Rigid3d&, FrameSet&& frames) {
@@ -269,6 +272,30 @@ TEST(CalibrateEndToEnd, RecoversTheTrueRigAndScansAsAccurately) {
   ExpectScanAsAccurate("mustard", SimulateScan(rig, scene, TruePatterns(d.truth)), d);
 }
 
+// Issue 11: the same figures from phase-only sequences — three groups per axis (periods
+// 1024/768, 128/96, 16/12), four steps, no white or black frame: the board is found in the
+// synthesised texture and its corners carried into the projector on the sub-pixel phase
+// coordinates.
+TEST(CalibrateEndToEnd, PhaseOnlySequencesGiveTheSameAccuracy) {
+  PatternOptions phase;
+  phase.family = PatternFamily::kPhase;
+  phase.white_black = false;
+  phase.steps = 4;
+  const Calibrated d = RenderAndCalibrate(phase);
+  {
+    SCOPED_TRACE("phase: calibration against the true rig");
+    ExpectTheTrueRig(d);
+  }
+  {
+    SCOPED_TRACE("phase: board poses");
+    ExpectTheTrueBoardPoses(d);
+  }
+  {
+    SCOPED_TRACE("phase: sphere before a backdrop");
+    ExpectScanAsAccurate("sphere", d.sphere, d);
+  }
+}
+
 // ---- bad input ------------------------------------------------------------------------
 
 std::string CalibrateError(RigCalibrator& calibrator) {
@@ -363,6 +390,46 @@ TEST(CalibrateBadInput, RefusesWhatCannotBeCalibrated) {
     const std::string error = AddFrameSetError(calibrator, x_only, "x_only");
     EXPECT_NE(error.find("view x_only: calibration needs both x and y codes"), std::string::npos)
         << error;
+  }
+}
+
+// Issue 11's bad input: a phase sequence coding one axis only, and a board smaller than
+// the given corner count in every view — one clear error each.
+TEST(CalibrateBadInput, PhaseWithOneAxisAndABoardSmallerThanGiven) {
+  const RigCalibration truth = DefaultRigCalibration();
+  VirtualRig rig(truth);
+  const BoardSpec board = TestBoard();
+  {
+    BoardSequenceOptions options;
+    options.num_views = 1;
+    options.patterns.family = PatternFamily::kPhase;
+    options.patterns.axes = PatternAxes::kX;
+    options.patterns.white_black = false;
+    RigCalibrator calibrator(board);
+    std::string error;
+    SimulateBoardSequence(rig, board, options, [&](int, const Rigid3d&, FrameSet&& frames) {
+      error = AddFrameSetError(calibrator, frames, "view_000");
+    });
+    EXPECT_NE(error.find("view view_000: calibration needs both x and y codes, the frame set "
+                         "codes only x"),
+              std::string::npos)
+        << error;
+    EXPECT_EQ(error.find('\n'), std::string::npos) << error;
+  }
+  {
+    BoardSpec smaller = board;
+    smaller.cols = 7;
+    smaller.rows = 5;
+    BoardSequenceOptions options;
+    options.num_views = 3;
+    RigCalibrator calibrator(board);  // told 11x8, shown 7x5
+    SimulateBoardSequence(rig, smaller, options, [&](int index, const Rigid3d&, FrameSet&& frames) {
+      EXPECT_FALSE(calibrator.AddFrameSet(frames, BoardViewName(index)).has_value());
+    });
+    const std::string error = CalibrateError(calibrator);
+    EXPECT_NE(error.find("board 11x8 not found in any view — check --board"), std::string::npos)
+        << error;
+    EXPECT_EQ(error.find('\n'), std::string::npos) << error;
   }
 }
 

@@ -158,12 +158,12 @@ NeighbourConsistency CheckAgainstNeighbours(const CorrespondenceMap& ours, const
 
 class RealDataDecode : public ::testing::TestWithParam<RealCapture> {};
 
-TEST_P(RealDataDecode, AgreesWithOpenCvGrayCodePattern) {
-  SOPE_REQUIRE_SHARED_DATA(data);
-  const RealCapture& capture = GetParam();
+// Decodes `capture` with `options` and holds the map to OpenCV's decode of it. `label`
+// names the configuration in the output (and the kept maps' directory).
+void CompareWithOpenCv(const std::string& data, const RealCapture& capture,
+                       DecoderOptions options, const std::string& label) {
   testing::ScratchDir import_scratch;
   const FrameSet set = LoadCapture(data, capture, import_scratch);
-  DecoderOptions options;
   options.min_contrast = kMinContrast;
   options.min_bit_contrast = kMinBitContrast;
   const CorrespondenceMap ours = Decode(set, options);
@@ -186,14 +186,14 @@ TEST_P(RealDataDecode, AgreesWithOpenCvGrayCodePattern) {
     }
   }
   const double agreement = both > 0 ? static_cast<double>(agree) / both : 0.0;
-  RecordProperty("both_decoded", static_cast<int>(both));
-  RecordProperty("ours_only", static_cast<int>(ours_only));
-  RecordProperty("opencv_only", static_cast<int>(theirs_only));
-  RecordProperty("disagreement_rate", fmt::format("{:.6f}", 1.0 - agreement));
+  ::testing::Test::RecordProperty("both_decoded", static_cast<int>(both));
+  ::testing::Test::RecordProperty("ours_only", static_cast<int>(ours_only));
+  ::testing::Test::RecordProperty("opencv_only", static_cast<int>(theirs_only));
+  ::testing::Test::RecordProperty("disagreement_rate", fmt::format("{:.6f}", 1.0 - agreement));
   std::cout << fmt::format(
-      "{}: {}x{} camera; both decoded {} ({:.1f} %), ours only {}, "
+      "{} [{}]: {}x{} camera; both decoded {} ({:.1f} %), ours only {}, "
       "OpenCV only {}, disagreement {:.4f} % ({} px, {} off by one)\n",
-      capture.name, theirs.cols, theirs.rows, both, 100.0 * both / theirs.total(), ours_only,
+      capture.name, label, theirs.cols, theirs.rows, both, 100.0 * both / theirs.total(), ours_only,
       theirs_only, 100.0 * (1.0 - agreement), both - agree, off_by_one);
   EXPECT_GT(both, theirs.total() / 10) << "too few pixels decoded to compare";
   EXPECT_GE(agreement, kMinAgreement);
@@ -206,8 +206,8 @@ TEST_P(RealDataDecode, AgreesWithOpenCvGrayCodePattern) {
   // same check (leaving themselves out), less two percentage points.
   const NeighbourConsistency ours_only_check = CheckAgainstNeighbours(ours, theirs, true);
   const NeighbourConsistency baseline = CheckAgainstNeighbours(ours, theirs, false);
-  RecordProperty("ours_only_consistent", fmt::format("{:.6f}", ours_only_check.Rate()));
-  RecordProperty("opencv_self_consistent", fmt::format("{:.6f}", baseline.Rate()));
+  ::testing::Test::RecordProperty("ours_only_consistent", fmt::format("{:.6f}", ours_only_check.Rate()));
+  ::testing::Test::RecordProperty("opencv_self_consistent", fmt::format("{:.6f}", baseline.Rate()));
   std::cout << fmt::format(
       "  neighbour consistency: ours-only pixels {:.3f} % of {}, OpenCV's own pixels {:.3f} % "
       "of {}\n",
@@ -221,11 +221,25 @@ TEST_P(RealDataDecode, AgreesWithOpenCvGrayCodePattern) {
   testing::ScratchDir scratch;
   const char* keep = std::getenv("SOPE_DECODE_TEST_OUTPUT");
   const std::string directory =
-      keep != nullptr ? JoinPath(keep, capture.name) : scratch.File(capture.name);
+      keep != nullptr ? JoinPath(keep, capture.name + "-" + label) : scratch.File(capture.name);
   WriteCorrespondenceMap(directory, ours);
   const CorrespondenceMap read = ReadCorrespondenceMap(directory);
   EXPECT_EQ(read.CountValid(), ours.CountValid());
   EXPECT_EQ(cv::norm(read.proj_x, ours.proj_x, cv::NORM_INF, ours.mask), 0.0);
+}
+
+TEST_P(RealDataDecode, AgreesWithOpenCvGrayCodePattern) {
+  SOPE_REQUIRE_SHARED_DATA(data);
+  CompareWithOpenCv(data, GetParam(), DecoderOptions(), "per-pixel");
+}
+
+// Issue 11: the scan's decoder with the spatial code consistency (integer codes, so that
+// they compare with OpenCV's) holds to the same agreement and neighbour checks.
+TEST_P(RealDataDecode, WithCodeConsistencyAgreesWithOpenCvToo) {
+  SOPE_REQUIRE_SHARED_DATA(data);
+  DecoderOptions options;
+  options.consistency.enabled = true;
+  CompareWithOpenCv(data, GetParam(), options, "consistency");
 }
 
 INSTANTIATE_TEST_SUITE_P(Captures, RealDataDecode,

@@ -1,0 +1,255 @@
+#include "decoder/code_consistency.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <opencv2/core.hpp>
+#include <vector>
+
+#include "core/error.h"
+#include "projector/patterns.h"
+
+namespace sope {
+namespace internal {
+namespace {
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+inline float Grey(const cv::Mat& image, int x, int y) {
+  return image.depth() == CV_16U ? image.at<uint16_t>(y, x) / 257.0f
+                                 : static_cast<float>(image.at<uint8_t>(y, x));
+}
+
+// The frames of one code axis, from its least significant present bit up.
+struct AxisFrames {
+  PatternAxis axis = PatternAxis::kX;
+  PatternCode code = PatternCode::kGray;
+  int lowest = 0;
+  int size = 0;                                  // projector pixels on the axis
+  std::vector<const cv::Mat*> pattern, inverse;  // index bit − lowest; inverse may be null
+};
+
+// Signed margin of bit index k at (x, y) in pattern − inverse units (grey levels, 8-bit
+// scale): positive = bit 1.
+inline float Margin(const AxisFrames& axis, size_t k, const cv::Mat* white, const cv::Mat* black,
+                    int x, int y) {
+  const float p = Grey(*axis.pattern[k], x, y);
+  if (axis.inverse[k]) return p - Grey(*axis.inverse[k], x, y);
+  return 2.0f * p - Grey(*white, x, y) - Grey(*black, x, y);
+}
+
+// Signed margins of every bit at (x, y), each averaged over a square window of half side
+// min(max_radius, ⌊stripe / 4⌋) camera pixels, `stripe` the bit's stripe width in camera
+// pixels at the local coordinate gradient `gradient` (projector px per camera px): the
+// window stays well inside one stripe, so averaging removes noise without mixing stripes
+// except within a quarter stripe of an edge (where the pixel is between two neighbouring
+// blocks anyway).
+void Margins(const AxisFrames& axis, const cv::Mat* white, const cv::Mat* black, int x, int y,
+             float gradient, int max_radius, std::vector<float>* margins) {
+  margins->resize(axis.pattern.size());
+  const int rows = axis.pattern[0]->rows, cols = axis.pattern[0]->cols;
+  for (size_t k = 0; k < axis.pattern.size(); ++k) {
+    const float stripe = static_cast<float>(1 << (k + axis.lowest)) / std::max(gradient, 1e-3f);
+    const int radius = std::min(max_radius, static_cast<int>(stripe / 4.0f));
+    float sum = 0.0f;
+    int count = 0;
+    for (int yy = std::max(0, y - radius); yy <= std::min(rows - 1, y + radius); ++yy) {
+      for (int xx = std::max(0, x - radius); xx <= std::min(cols - 1, x + radius); ++xx) {
+        sum += Margin(axis, k, white, black, xx, yy);
+        ++count;
+      }
+    }
+    (*margins)[k] = sum / static_cast<float>(count);
+  }
+}
+
+struct Choice {
+  float coordinate = kNaN;
+  float confidence = 0.0f;
+};
+
+// The best-supported block near `predicted` (see FillFromConsistentNeighbours).
+Choice ChooseBlock(const AxisFrames& axis, const std::vector<float>& margins, float predicted,
+                   float contrast, const DecoderOptions& options) {
+  const int step = 1 << axis.lowest;
+  const int blocks = (axis.size + step - 1) / step;
+  const float centre_offset = 0.5f * (step - 1);
+  const float radius = static_cast<float>(options.consistency.search_radius_px);
+  const int first =
+      std::max(0, static_cast<int>(std::floor((predicted - radius - centre_offset) / step)));
+  const int last = std::min(
+      blocks - 1, static_cast<int>(std::ceil((predicted + radius - centre_offset) / step)));
+  const float strong =
+      static_cast<float>(options.consistency.strong_bit_factor * options.min_bit_contrast);
+  float best = -std::numeric_limits<float>::infinity(), second = best;
+  int best_block = -1;
+  for (int block = first; block <= last; ++block) {
+    const float centre = block * step + centre_offset;
+    if (std::abs(centre - predicted) > radius + 0.5f * step) continue;
+    const uint32_t word =
+        axis.code == PatternCode::kGray ? GrayFromBinary(block) : static_cast<uint32_t>(block);
+    float score = 0.0f;
+    bool contradicted = false;
+    for (size_t k = 0; k < margins.size(); ++k) {
+      const float signed_margin = ((word >> k) & 1u) ? margins[k] : -margins[k];
+      score += signed_margin;
+      contradicted |= signed_margin <= -strong;
+    }
+    if (contradicted) continue;
+    if (score > best) {
+      second = best;
+      best = score;
+      best_block = block;
+    } else if (score > second) {
+      second = score;
+    }
+  }
+  Choice choice;
+  if (best_block < 0) return choice;
+  const float lead = std::isfinite(second) ? best - second : best;
+  if (!(lead >= static_cast<float>(options.consistency.min_lead))) return choice;
+  const int end = std::min((best_block + 1) * step, axis.size);
+  choice.coordinate = 0.5f * static_cast<float>(best_block * step + end - 1);
+  choice.confidence = std::min(0.5f, lead / (4.0f * std::max(contrast, 1.0f)));
+  return choice;
+}
+
+}  // namespace
+}  // namespace internal
+
+void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& options,
+                                  CorrespondenceMap* map) {
+  using namespace internal;
+  SOPE_CHECK(map != nullptr, "FillFromConsistentNeighbours: no map");
+  const FrameSetManifest& manifest = frames.manifest;
+  SOPE_CHECK(map->width() == manifest.camera_width && map->height() == manifest.camera_height,
+             "FillFromConsistentNeighbours: the map is {}x{} but the frames are {}x{}",
+             map->width(), map->height(), manifest.camera_width, manifest.camera_height);
+  std::vector<AxisFrames> axes;
+  for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+    const bool coded = axis == PatternAxis::kX ? map->HasX() : map->HasY();
+    if (!coded) continue;
+    // Every coded axis must be a code axis with all its frames, or nothing is filled.
+    if (!manifest.HasAxis(axis) || manifest.HasPhaseAxis(axis)) return;
+    AxisFrames frames_of_axis;
+    frames_of_axis.axis = axis;
+    frames_of_axis.code = manifest.AxisCode(axis);
+    frames_of_axis.lowest = manifest.AxisLowestBit(axis);
+    frames_of_axis.size =
+        axis == PatternAxis::kX ? manifest.projector_width : manifest.projector_height;
+    for (int bit = frames_of_axis.lowest; bit < manifest.AxisBits(axis); ++bit) {
+      const auto pattern = manifest.FindCode(axis, bit, false);
+      if (!pattern) return;
+      const auto inverse = manifest.FindCode(axis, bit, true);
+      frames_of_axis.pattern.push_back(&frames.Image(*pattern));
+      frames_of_axis.inverse.push_back(inverse ? &frames.Image(*inverse) : nullptr);
+    }
+    axes.push_back(frames_of_axis);
+  }
+  if (axes.empty()) return;
+  const auto white_index = manifest.Find(FrameRole::kWhite);
+  const auto black_index = manifest.Find(FrameRole::kBlack);
+  const cv::Mat* white = white_index ? &frames.Image(*white_index) : nullptr;
+  const cv::Mat* black = black_index ? &frames.Image(*black_index) : nullptr;
+  for (const AxisFrames& axis : axes) {
+    for (const cv::Mat* inverse : axis.inverse) {
+      if (inverse == nullptr && !(white && black)) return;  // cannot form the margins
+    }
+  }
+  const int rows = map->height(), cols = map->width();
+  const int radius = options.consistency.window_radius;
+  for (int pass = 0; pass < options.consistency.passes; ++pass) {
+    // Decided from the map as it was before this pass (rows in parallel, no order effects).
+    const cv::Mat mask_before = map->mask.clone();
+    const cv::Mat x_before = map->HasX() ? map->proj_x.clone() : cv::Mat();
+    const cv::Mat y_before = map->HasY() ? map->proj_y.clone() : cv::Mat();
+    std::vector<int> filled_per_row(rows, 0);
+    cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
+      std::vector<float> margins;
+      std::vector<cv::Vec3f> samples;
+      for (int y = range.start; y < range.end; ++y) {
+        for (int x = 0; x < cols; ++x) {
+          if (mask_before.at<uint8_t>(y, x)) continue;
+          // Contrast.
+          float contrast = 0.0f;
+          if (white && black) {
+            contrast = Grey(*white, x, y) - Grey(*black, x, y);
+          } else {
+            for (const AxisFrames& axis : axes) {
+              for (size_t k = 0; k < axis.pattern.size(); ++k)
+                contrast = std::max(contrast, std::abs(Margin(axis, k, white, black, x, y)));
+            }
+          }
+          if (!(contrast >= options.consistency.min_contrast)) continue;
+          Choice choices[2];
+          bool ok = true;
+          for (size_t a = 0; a < axes.size() && ok; ++a) {
+            const cv::Mat& before = axes[a].axis == PatternAxis::kX ? x_before : y_before;
+            // Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours:
+            // the prediction at the pixel and the local gradient.
+            cv::Matx33d normal = cv::Matx33d::zeros();
+            cv::Vec3d rhs(0, 0, 0);
+            samples.clear();
+            for (int dy = -radius; dy <= radius; ++dy) {
+              const int yy = y + dy;
+              if (yy < 0 || yy >= rows) continue;
+              for (int dx = -radius; dx <= radius; ++dx) {
+                const int xx = x + dx;
+                if (xx < 0 || xx >= cols || !mask_before.at<uint8_t>(yy, xx)) continue;
+                const double u = before.at<float>(yy, xx);
+                const cv::Vec3d basis(1.0, dx, dy);
+                normal += basis * basis.t();
+                rhs += basis * u;
+                samples.push_back(
+                    {static_cast<float>(dx), static_cast<float>(dy), static_cast<float>(u)});
+              }
+            }
+            if (static_cast<int>(samples.size()) < options.consistency.min_neighbours ||
+                cv::determinant(normal) < 1e-6) {
+              ok = false;
+              break;
+            }
+            const cv::Vec3d plane = normal.inv() * rhs;
+            double residual = 0.0;
+            for (const cv::Vec3f& sample : samples) {
+              const double r = sample[2] - (plane[0] + plane[1] * sample[0] + plane[2] * sample[1]);
+              residual += r * r;
+            }
+            // Not a smooth surface around the pixel (an edge, another object): no prediction.
+            if (std::sqrt(residual / samples.size()) > options.consistency.max_plane_rms_px) {
+              ok = false;
+              break;
+            }
+            const float predicted = static_cast<float>(plane[0]);
+            const float gradient = static_cast<float>(std::hypot(plane[1], plane[2]));
+            // Stripes compressed below the camera's resolution (a surface seen at grazing
+            // incidence): the neighbours cannot bound the code to a pixel.
+            if (!(gradient <= options.consistency.max_gradient)) {
+              ok = false;
+              break;
+            }
+            Margins(axes[a], white, black, x, y, gradient, options.consistency.max_average_radius,
+                    &margins);
+            choices[a] = ChooseBlock(axes[a], margins, predicted, contrast, options);
+            ok = std::isfinite(choices[a].coordinate);
+          }
+          if (!ok) continue;
+          float confidence = 1.0f;
+          for (size_t a = 0; a < axes.size(); ++a) {
+            (axes[a].axis == PatternAxis::kX ? map->proj_x : map->proj_y).at<float>(y, x) =
+                choices[a].coordinate;
+            confidence = std::min(confidence, choices[a].confidence);
+          }
+          map->mask.at<uint8_t>(y, x) = 255;
+          map->confidence.at<float>(y, x) = confidence;
+          ++filled_per_row[y];
+        }
+      }
+    });
+    int filled = 0;
+    for (int count : filled_per_row) filled += count;
+    if (filled == 0) break;
+  }
+}
+
+}  // namespace sope
