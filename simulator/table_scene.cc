@@ -8,6 +8,7 @@
 
 #include <Eigen/Geometry>
 #include <fmt/format.h>
+#include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
 extern "C" {
@@ -15,6 +16,7 @@ extern "C" {
 }
 
 #include "core/error.h"
+#include "core/json.h"
 #include "simulator/primitives.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/scene_builder.h"
@@ -446,6 +448,7 @@ TableScene MakeTableScene(const TableSceneOptions& options, const RigCalibration
       truth.mesh = spec.mesh.faces.empty() ? LoadMeshSpec(spec.spec) : spec.mesh;
       std::string model, class_name;
       TableObjectNames(spec.spec, &model, &class_name);
+      truth.spec = spec.spec;
       truth.model = spec.model.empty() ? model : spec.model;
       truth.class_name = spec.class_name.empty() ? class_name : spec.class_name;
       truth.mesh.Check();
@@ -640,6 +643,38 @@ void ComputeVisibleFractions(const cv::Mat& object_id, const CameraModel& camera
 void ComputeVisibleFractions(VirtualRig& rig, TableScene* scene) {
   rig.SetScene(scene->scene);
   ComputeVisibleFractions(rig.ground_truth().object_id, rig.calibration().camera, scene);
+}
+
+std::string TableGroundTruthJson(const TableScene& scene) {
+  nlohmann::json objects = nlohmann::json::array();
+  for (const TableObjectTruth& truth : scene.objects) {
+    objects.push_back({{"model", truth.model},
+                       {"class", truth.class_name},
+                       {"known", truth.known},
+                       {"cam_from_model", Rigid3dToJson(truth.cam_from_model)},
+                       {"visible_fraction", JsonNumber(truth.visible_fraction)},
+                       {"visible_pixels", truth.visible_pixels},
+                       {"alone_pixels", truth.alone_pixels},
+                       {"gt_object_id", truth.scene_index + 1},
+                       {"mesh", truth.spec},
+                       {"scale", JsonNumber(truth.scale)},
+                       {"albedo", JsonNumber(scene.scene.objects.at(truth.scene_index).albedo)},
+                       {"center_of_mass_in_model", Vector3dToJson(truth.center_of_mass_in_model)}});
+  }
+  const Eigen::Vector4d& plane = scene.table_plane_in_cam;
+  nlohmann::json j = {
+      {"format", "sope-gt-pose/1"},
+      {"scene", "table"},
+      {"units", "metres; rotation maps model to camera; table_plane n·x + d = 0 in the camera "
+                "frame, n towards the camera"},
+      {"table_plane", {JsonNumber(plane[0]), JsonNumber(plane[1]), JsonNumber(plane[2]),
+                       JsonNumber(plane[3])}},
+      {"table", {{"cam_from_table", Rigid3dToJson(scene.cam_from_table)},
+                 {"camera_tilt_deg", JsonNumber(scene.camera_tilt_deg)},
+                 {"gt_object_id", scene.table_index + 1}}},
+      {"objects", objects}};
+  if (scene.backdrop_index >= 0) j["backdrop"] = {{"gt_object_id", scene.backdrop_index + 1}};
+  return j.dump(2) + "\n";
 }
 
 SensorOptions TableSensorOptions(uint64_t seed) {

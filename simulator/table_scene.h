@@ -93,6 +93,7 @@ struct TableSceneOptions {
 };
 
 struct TableObjectTruth {
+  std::string spec;  // the mesh spec (empty for clutter and meshes given directly)
   std::string model, class_name;
   bool known = true;      // false for clutter
   int scene_index = -1;   // index in Scene::objects (gt_object_id = index + 1)
@@ -150,6 +151,18 @@ SensorOptions TableSensorOptions(uint64_t seed = 1);
 // backdrop grey, nothing black; each known object labelled with its model name.
 cv::Mat DrawTableObjects(const cv::Mat& object_id, const CameraModel& camera,
                          const TableScene& scene);
+
+// gt_pose.json of a table scene (`sope simulate --table`), pretty-printed:
+//   {"format": "sope-gt-pose/1", "scene": "table", "units": …,
+//    "table_plane": [nx, ny, nz, d] (camera frame, n·x + d = 0, n towards the camera),
+//    "table": {"cam_from_table", "camera_tilt_deg", "gt_object_id"},
+//    "backdrop": {"gt_object_id"} (when present),
+//    "objects": [{"model", "class", "known", "cam_from_model" (rotation 3×3, translation m,
+//                 as for single-object scans), "visible_fraction", "visible_pixels",
+//                 "alone_pixels", "gt_object_id" (its value in gt_object_id.png), "mesh"
+//                 (the spec), "scale", "albedo", "center_of_mass_in_model"}, …]}
+// known objects first, then clutter.
+std::string TableGroundTruthJson(const TableScene& scene);
 
 namespace internal {
 
