@@ -69,26 +69,6 @@ struct SensorFlags {
   }
 };
 
-struct TableFlags {
-  bool table = false, no_backdrop = false;
-  int clutter = 0;
-  double tilt_min = 30.0, tilt_max = 60.0, distance = 0.75;
-  void Add(CLI::App& app) {
-    app.add_flag("--table", table,
-                 "A tabletop scene: every --mesh in a stable resting pose on a table seen from "
-                 "30-60 degrees above, gt_pose.json listing every object");
-    auto* group = app.add_option_group("table scenes (--table)");
-    group->add_option("--clutter", clutter, "Unknown clutter objects (tori, stones) on the table")
-        ->capture_default_str();
-    group->add_flag("--no-backdrop", no_backdrop, "No wall behind the table");
-    group->add_option("--tilt-min", tilt_min, "Camera tilt range, degrees")->capture_default_str();
-    group->add_option("--tilt-max", tilt_max, "Camera tilt range, degrees")->capture_default_str();
-    group->add_option("--table-distance", distance,
-                      "Camera centre to the table along the optical axis, metres")
-        ->capture_default_str();
-  }
-};
-
 // Rescales meshes whose diagonal is not plausibly metres (core/object_size.h, as build-db).
 double TableObjectSize(const std::string& spec, double size) {
   if (size >= 0) return size;
@@ -102,22 +82,18 @@ double TableObjectSize(const std::string& spec, double size) {
 }
 
 int RunTableSimulation(const std::vector<std::string>& meshes, double size,
-                       const TableFlags& flags, const SensorOptions& sensor,
+                       const cli::TableFlags& flags, bool no_backdrop, const SensorOptions& sensor,
                        const RigCalibration& calibration, const PatternOptions& patterns,
                        bool allow_empty, const std::string& out) {
   SOPE_CHECK(!meshes.empty(), "--table needs at least one --mesh");
-  TableSceneOptions options;
+  TableSceneOptions options = flags.ToOptions();
   for (const std::string& spec : meshes) {
     TableObjectSpec object;
     object.spec = spec;
     object.size = TableObjectSize(spec, size);
     options.objects.push_back(object);
   }
-  options.clutter = flags.clutter;
-  options.backdrop = !flags.no_backdrop;
-  options.camera_tilt_deg_min = flags.tilt_min;
-  options.camera_tilt_deg_max = flags.tilt_max;
-  options.table_distance = flags.distance;
+  options.backdrop = !no_backdrop;
   options.seed = sensor.seed;
   TableScene table = MakeTableScene(options, calibration);
   VirtualRig rig(calibration, sensor);
@@ -155,7 +131,8 @@ int RunSimulate(int argc, char** argv) {
   double size = -1.0, backdrop = 0.0;
   SensorFlags sensor_flags;
   SensorOptions& sensor = sensor_flags.sensor;
-  TableFlags table_flags;
+  cli::TableFlags table_flags;
+  bool no_backdrop = false;
   cli::PatternFlags pattern_flags;
   cli::LoggingFlags logging;
   std::string board_text;
@@ -189,7 +166,8 @@ int RunSimulate(int argc, char** argv) {
   app.add_option("--rig", rig_path, "Rig calibration YAML (default: the built-in desktop rig)");
   app.add_option("--out", out, "Output frame-set directory")->required();
   sensor_flags.Add(app);
-  table_flags.Add(app);
+  table_flags.Add(app, false);
+  app.add_flag("--no-backdrop", no_backdrop, "--table: no wall behind the table");
   pattern_flags.Add(app);
   logging.Add(app);
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
@@ -222,9 +200,11 @@ int RunSimulate(int argc, char** argv) {
                    (std::isfinite(size) && size > 0.0 && size <= kMaxPlausibleDiagonal),
                "--object-size must be in (0, {}] m for a table, got {}", kMaxPlausibleDiagonal,
                size);
-    return RunTableSimulation(mesh_paths, size, table_flags, sensor_flags.TableOptions(),
+    return RunTableSimulation(mesh_paths, size, table_flags, no_backdrop,
+                              sensor_flags.TableOptions(),
                               calibration, patterns, allow_empty, out);
   }
+  SOPE_CHECK(!no_backdrop, "--no-backdrop is for --table (single objects: omit --backdrop)");
   SOPE_CHECK(mesh_paths.size() <= 1, "--mesh given {} times: several meshes need --table",
              mesh_paths.size());
   if (!mesh_paths.empty()) mesh_path = mesh_paths[0];
