@@ -85,7 +85,7 @@ Eigen::Matrix3d RotationBetween(const Eigen::Vector3d& from, const Eigen::Vector
   return Eigen::Quaterniond::FromTwoVectors(from, to).toRotationMatrix();
 }
 
-// Clutter: tori and lumpy stones, 3–9 cm.
+// Clutter: tori 6–11 cm and lumpy stones 3–9 cm across.
 TriangleMesh MakeClutter(SplitMix* rng, std::string* model, int index) {
   if (rng->Uniform() < 0.4) {
     *model = fmt::format("clutter_torus_{}", index);

@@ -64,7 +64,7 @@ void TableObjectNames(const std::string& spec, std::string* model, std::string* 
 struct TableSceneOptions {
   std::vector<TableObjectSpec> objects;  // the known objects, at least one
   // Unknown clutter objects (class "clutter", in no database): tori and lumpy stones
-  // (a sphere with random low-order bumps), 3–9 cm.
+  // (an ellipsoid with random low-order bumps), 6–11 cm and 3–9 cm across.
   int clutter = 0;
   // A matte wall standing on the table's far edge, facing the camera.
   bool backdrop = true;
