@@ -69,18 +69,6 @@ struct SensorFlags {
   }
 };
 
-// Rescales meshes whose diagonal is not plausibly metres (core/object_size.h, as build-db).
-double TableObjectSize(const std::string& spec, double size) {
-  if (size >= 0) return size;
-  const double diagonal = LoadMeshSpec(spec).BoundingDiagonal();
-  SOPE_CHECK(std::isfinite(diagonal) && diagonal > 0.0,
-             "mesh {}: its extent ({} units) is not a usable size", spec, diagonal);
-  if (IsPlausibleDiagonal(diagonal)) return 0.0;
-  spdlog::info("mesh {}: diagonal {:.3g} units, scaled to {} m (as build-db does)", spec,
-               diagonal, kDefaultObjectSize);
-  return kDefaultObjectSize;
-}
-
 int RunTableSimulation(const std::vector<std::string>& meshes, double size,
                        const cli::TableFlags& flags, bool no_backdrop, const SensorOptions& sensor,
                        const RigCalibration& calibration, const PatternOptions& patterns,
@@ -90,7 +78,7 @@ int RunTableSimulation(const std::vector<std::string>& meshes, double size,
   for (const std::string& spec : meshes) {
     TableObjectSpec object;
     object.spec = spec;
-    object.size = TableObjectSize(spec, size);
+    object.size = size >= 0 ? size : kSizeAsDatabase;
     options.objects.push_back(object);
   }
   options.backdrop = !no_backdrop;

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 
@@ -48,14 +49,17 @@ struct TriangulationFlags {
 };
 
 // Tabletop scenes (`simulate --table`, `scan-and-recognise --virtual --table`): --table,
-// --clutter, --tilt-min/--tilt-max, --table-distance, and with `objects_flag` --objects N.
+// --clutter, --tilt-min/--tilt-max, --table-distance, and with `objects_flags` --objects N
+// and --mesh (repeated: these objects instead of procedural ones).
 struct TableFlags {
   bool table = false;
   int objects = 0;  // 0: 3-5 per scene
+  std::vector<std::string> meshes;
   TableSceneOptions scene;
-  void Add(CLI::App& app, bool objects_flag);
-  // scene's clutter, tilt and distance (no objects; seed and backdrop are the caller's).
-  TableSceneOptions ToOptions() const { return scene; }
+  void Add(CLI::App& app, bool objects_flags);
+  // Clutter, tilt, distance and the --mesh objects (sized as build-db does); seed and
+  // backdrop are the caller's.
+  TableSceneOptions ToOptions() const;
 };
 
 }  // namespace cli

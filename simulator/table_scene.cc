@@ -17,6 +17,7 @@ extern "C" {
 
 #include "core/error.h"
 #include "core/json.h"
+#include "core/object_size.h"
 #include "simulator/primitives.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/scene_builder.h"
@@ -407,7 +408,8 @@ void TableSceneOptions::Check() const {
   for (const TableObjectSpec& object : objects) {
     SOPE_CHECK(!object.spec.empty() || !object.mesh.faces.empty(),
                "a table object needs a mesh spec or a mesh");
-    SOPE_CHECK(std::isfinite(object.size) && object.size >= 0 && object.size <= 10,
+    SOPE_CHECK(object.size == kSizeAsDatabase ||
+                   (std::isfinite(object.size) && object.size >= 0 && object.size <= 10),
                "object {}: size must be in [0, 10] m, got {}", object.spec, object.size);
   }
 }
@@ -451,12 +453,18 @@ TableScene MakeTableScene(const TableSceneOptions& options, const RigCalibration
       truth.spec = spec.spec;
       truth.model = spec.model.empty() ? model : spec.model;
       truth.class_name = spec.class_name.empty() ? class_name : spec.class_name;
+      if (truth.model.empty()) truth.model = fmt::format("object_{}", i + 1);
+      if (truth.class_name.empty()) truth.class_name = truth.model;
       truth.mesh.Check();
       const double diagonal = truth.mesh.BoundingDiagonal();
       SOPE_CHECK(std::isfinite(diagonal) && diagonal > 0, "object {} ({}): the mesh has no extent",
                  i + 1, truth.model);
-      if (spec.size > 0) {
-        truth.scale = spec.size / diagonal;
+      const double size =
+          spec.size != kSizeAsDatabase ? spec.size
+          : IsPlausibleDiagonal(diagonal) ? 0.0
+                                          : kDefaultObjectDiagonal;
+      if (size > 0) {
+        truth.scale = size / diagonal;
         truth.mesh.Transform(truth.scale, Eigen::Vector3d::Zero());
       }
     } else {

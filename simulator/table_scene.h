@@ -49,9 +49,12 @@ struct TableObjectSpec {
   std::string class_name;
   // Model frame; filled by MakeTableScene from `spec` when empty.
   TriangleMesh mesh;
-  // Bounding-box diagonal to scale the mesh to, metres; 0 keeps its units (files in metres).
+  // Bounding-box diagonal to scale the mesh to, metres; 0 keeps its units (files in
+  // metres); kSizeAsDatabase: the rule build-db applies (core/object_size.h: kept when the
+  // diagonal is plausible in metres, else scaled to kDefaultObjectDiagonal).
   double size = 0.0;
 };
+constexpr double kSizeAsDatabase = -1.0;
 
 // Model and class names a database built from the same meshes gives (build-db and the
 // procedural models directory, simulator/procedural_objects.h WriteProceduralModels):

@@ -6,6 +6,7 @@
 #include <opencv2/core.hpp>
 
 #include "core/error.h"
+#include "core/object_size.h"
 #include "simulator/primitives.h"
 
 namespace sope {
@@ -253,6 +254,25 @@ TEST(TableScene, VisibleFractionsMatchObjectIds) {
     const int count = cv::countNonZero(rig.ground_truth().object_id == 0);
     EXPECT_NEAR(count, truth.alone_pixels, 0.005 * truth.alone_pixels) << truth.model;
   }
+}
+
+TEST(TableScene, SizesMeshesLikeTheDatabaseBuilder) {
+  TableSceneOptions options;
+  TableObjectSpec large;  // a 2 m cube: not plausibly metres
+  large.mesh = MakeBox(2, 2, 2);
+  large.model = "large";
+  large.size = kSizeAsDatabase;
+  TableObjectSpec kept = Spec("builtin:mug:2");
+  kept.size = kSizeAsDatabase;
+  TableObjectSpec resized = Spec("builtin:can:2");
+  resized.size = 0.2;
+  options.objects = {large, kept, resized};
+  const TableScene scene = MakeTableScene(options, DefaultRigCalibration());
+  EXPECT_NEAR(scene.objects[0].scale, kDefaultObjectDiagonal / std::sqrt(12.0), 1e-6);
+  EXPECT_NEAR(scene.objects[0].mesh.BoundingDiagonal(), kDefaultObjectDiagonal, 1e-6);
+  EXPECT_EQ(scene.objects[0].model, "large");
+  EXPECT_EQ(scene.objects[1].scale, 1.0);
+  EXPECT_NEAR(scene.objects[2].mesh.BoundingDiagonal(), 0.2, 1e-6);
 }
 
 TEST(TableScene, BadInputGetsOneClearError) {
