@@ -184,10 +184,14 @@ class VirtualTableSource : public ScanSource {
   SourceScan Next(int index, const CaptureProgress& progress = {}) override;
   // The scene of the last Next (before the first: of scan 0).
   const TableScene& scene() const { return scene_; }
-  // The options MakeTableScene gets for scan `index`.
-  TableSceneOptions SceneOptions(int index) const;
+  // The options MakeTableScene gets for scan `index`: draw 0, 1, … of the procedural
+  // objects (a draw that does not fit on the table is replaced by the next, at most
+  // kProceduralDraws).
+  TableSceneOptions SceneOptions(int index, int draw = 0) const;
+  static constexpr int kProceduralDraws = 20;
 
  private:
+  TableScene MakeScene(int index) const;
   VirtualTableSourceOptions options_;
   TableScene scene_;
   LiveRig rig_;

@@ -405,6 +405,8 @@ void TableSceneOptions::Check() const {
              "image margin must be ≥ 0 px, got {}", image_margin_px);
   SOPE_CHECK(placement_attempts >= 1, "placement attempts must be ≥ 1, got {}",
              placement_attempts);
+  SOPE_CHECK(placement_restarts >= 1, "placement restarts must be ≥ 1, got {}",
+             placement_restarts);
   for (const TableObjectSpec& object : objects) {
     SOPE_CHECK(!object.spec.empty() || !object.mesh.faces.empty(),
                "a table object needs a mesh spec or a mesh");
@@ -527,62 +529,75 @@ TableScene MakeTableScene(const TableSceneOptions& options, const RigCalibration
     return true;
   };
 
-  std::vector<std::vector<Eigen::Vector2d>> placed;
-  std::vector<Eigen::Vector2d> placed_centres;
+  // Greedy placement, restarted from an empty table when an object finds no place.
   std::vector<Pose> poses(total);
-  for (int k = 0; k < total; ++k) {
-    const Candidate& object = candidates[order[k]];
-    TableObjectTruth& truth = out.objects[object.input];
-    bool found = false;
-    for (int attempt = 0; attempt < options.placement_attempts && !found; ++attempt) {
-      // A stable face by its probability, a yaw, and a table point seen by a random pixel.
-      double pick = rng.Uniform() * object.total_probability;
-      int face = 0;
-      while (face + 1 < static_cast<int>(object.faces.size()) &&
-             pick >= object.faces[face].probability) {
-        pick -= object.faces[face].probability;
-        ++face;
-      }
-      const double yaw = rng.Uniform(0, 2 * M_PI);
-      const Eigen::Vector2d pixel(rng.Uniform(0.1, 0.9) * camera.width,
-                                  rng.Uniform(0.1, 0.9) * camera.height);
-      const Eigen::Vector3d ray = camera.RayFromImage(pixel);
-      const double along = z_axis.dot(ray);
-      if (along >= -1e-6) continue;  // the ray misses the table
-      const Eigen::Vector3d hit_in_table =
-          table_from_cam * Eigen::Vector3d(-out.table_plane_in_cam[3] / along * ray);
-      Pose pose = RestPose(object, face, yaw, hit_in_table.head<2>());
-      if (!valid(object, pose, placed)) continue;
-      if (options.allow_touching && !placed.empty() && rng.Uniform() < options.touch_probability) {
-        // Slide toward the nearest placed object until the footprints touch.
-        const Eigen::Vector2d start = hit_in_table.head<2>();
-        size_t nearest = 0;
-        for (size_t j = 1; j < placed_centres.size(); ++j) {
-          if ((placed_centres[j] - start).norm() < (placed_centres[nearest] - start).norm()) {
-            nearest = j;
+  int failed = -1, failed_after = 0;
+  for (int restart = 0; restart < options.placement_restarts; ++restart) {
+    failed = -1;
+    std::vector<std::vector<Eigen::Vector2d>> placed;
+    std::vector<Eigen::Vector2d> placed_centres;
+    for (int k = 0; k < total; ++k) {
+      const Candidate& object = candidates[order[k]];
+      bool found = false;
+      for (int attempt = 0; attempt < options.placement_attempts && !found; ++attempt) {
+        // A stable face by its probability, a yaw, and a table point seen by a random pixel.
+        double pick = rng.Uniform() * object.total_probability;
+        int face = 0;
+        while (face + 1 < static_cast<int>(object.faces.size()) &&
+               pick >= object.faces[face].probability) {
+          pick -= object.faces[face].probability;
+          ++face;
+        }
+        const double yaw = rng.Uniform(0, 2 * M_PI);
+        const Eigen::Vector2d pixel(rng.Uniform(0.1, 0.9) * camera.width,
+                                    rng.Uniform(0.1, 0.9) * camera.height);
+        const Eigen::Vector3d ray = camera.RayFromImage(pixel);
+        const double along = z_axis.dot(ray);
+        if (along >= -1e-6) continue;  // the ray misses the table
+        const Eigen::Vector3d hit_in_table =
+            table_from_cam * Eigen::Vector3d(-out.table_plane_in_cam[3] / along * ray);
+        Pose pose = RestPose(object, face, yaw, hit_in_table.head<2>());
+        if (!valid(object, pose, placed)) continue;
+        if (options.allow_touching && !placed.empty() && rng.Uniform() < options.touch_probability) {
+          // Slide toward the nearest placed object until the footprints touch.
+          const Eigen::Vector2d start = hit_in_table.head<2>();
+          size_t nearest = 0;
+          for (size_t j = 1; j < placed_centres.size(); ++j) {
+            if ((placed_centres[j] - start).norm() < (placed_centres[nearest] - start).norm()) {
+              nearest = j;
+            }
           }
+          const Eigen::Vector2d goal = placed_centres[nearest];
+          double lo = 0.0, hi = 1.0;
+          for (int step = 0; step < kTouchSteps; ++step) {
+            const double mid = 0.5 * (lo + hi);
+            const Pose moved = RestPose(object, face, yaw, start + mid * (goal - start));
+            (valid(object, moved, placed) ? lo : hi) = mid;
+          }
+          pose = RestPose(object, face, yaw, start + lo * (goal - start));
         }
-        const Eigen::Vector2d goal = placed_centres[nearest];
-        double lo = 0.0, hi = 1.0;
-        for (int step = 0; step < kTouchSteps; ++step) {
-          const double mid = 0.5 * (lo + hi);
-          const Pose moved = RestPose(object, face, yaw, start + mid * (goal - start));
-          (valid(object, moved, placed) ? lo : hi) = mid;
-        }
-        pose = RestPose(object, face, yaw, start + lo * (goal - start));
+        poses[object.input] = pose;
+        placed.push_back(pose.footprint);
+        Eigen::Vector2d centre = Eigen::Vector2d::Zero();
+        for (const Eigen::Vector2d& p : pose.footprint) centre += p;
+        placed_centres.push_back(centre / static_cast<double>(pose.footprint.size()));
+        found = true;
       }
-      poses[object.input] = pose;
-      placed.push_back(pose.footprint);
-      Eigen::Vector2d centre = Eigen::Vector2d::Zero();
-      for (const Eigen::Vector2d& p : pose.footprint) centre += p;
-      placed_centres.push_back(centre / static_cast<double>(pose.footprint.size()));
-      found = true;
+      if (!found) {
+        failed = object.input;
+        failed_after = k;
+        break;
+      }
     }
-    SOPE_CHECK(found,
-               "cannot place {} objects on the table: object {} ({}, {:.0f} mm across) does not "
-               "fit beside the {} placed in the area camera and projector both see ({} attempts)",
-               total, object.input + 1, truth.model, 2e3 * object.radius, k,
-               options.placement_attempts);
+    if (failed < 0) break;
+  }
+  if (failed >= 0) {
+    SOPE_THROW(
+        "cannot place {} objects on the table: object {} ({}, {:.0f} mm across) does not fit "
+        "beside the {} placed in the area camera and projector both see ({} restarts of {} "
+        "attempts per object)",
+        total, failed + 1, out.objects[failed].model, 2e3 * candidates[failed].radius,
+        failed_after, options.placement_restarts, options.placement_attempts);
   }
 
   // Scene objects: known, clutter, table, backdrop.

@@ -88,8 +88,10 @@ struct TableSceneOptions {
   double touch_probability = 0.4;
   // Margin kept from the camera's and the projector's image border, pixels.
   double image_margin_px = 20.0;
-  // Random placements tried per object before giving up.
+  // Random placements tried per object; when one finds no place, the table is cleared and
+  // placement starts again, at most `placement_restarts` times in all.
   int placement_attempts = 400;
+  int placement_restarts = 8;
   uint64_t seed = 1;
   // Throws sope::Error naming the invalid value (no objects, tilt outside (0, 90], …).
   void Check() const;
