@@ -6,9 +6,9 @@ set -euo pipefail
 sope=${1:-build/app/sope}
 out=${2:-out/demo}
 mkdir -p "$out"
-echo "== simulate: a sphere before a backdrop on the virtual rig"
-"$sope" simulate --mesh builtin:sphere --object-size 0.2 --object-pose 0,0,0,0,0,0.58 \
-  --backdrop 0.72 --out "$out/frames"
+echo "== simulate: a table with four household objects and an unknown stone on the virtual rig"
+"$sope" simulate --table --mesh builtin:mug:1003 --mesh builtin:bowl:1004 \
+  --mesh builtin:bottle:1005 --mesh builtin:can:1006 --clutter 1 --seed 3 --out "$out/frames"
 echo "== decode"
 "$sope" decode --frames "$out/frames" --out "$out/maps"
 echo "== scan"
@@ -18,7 +18,8 @@ echo "   builds the default database, ~30 s, cached in \${XDG_CACHE_HOME:-~/.cac
 rm -rf "$out/recognise"  # results.jsonl would otherwise collect every run
 "$sope" scan-and-recognise --virtual --scans 3 --out "$out/recognise"
 echo
-echo "results in $out: frames/ (frame set + ground truth), maps/*.png (decoded maps), cloud.ply,"
+echo "results in $out: frames/ (frame set + ground truth: gt_objects.png names every object,"
+echo "  gt_pose.json lists them), maps/*.png (decoded maps), cloud.ply,"
 echo "  recognise/: per scan the cloud (scan_NNNN.ply, scan_NNNN_object.ply), the overlay"
 echo "  (scan_NNNN_overlay.png: the recognised model drawn on the camera image) and"
 echo "  results.jsonl (one JSON recognition result per scan, with timings and ground truth)"
