@@ -35,6 +35,7 @@ struct Flags {
   cli::PatternFlags patterns;
   cli::LiveRigFlags live;
   cli::LoggingFlags logging;
+  cli::TableFlags table;
   CLI::Option* scans_option = nullptr;
 
   void Add(CLI::App& app);
@@ -94,7 +95,9 @@ void Flags::Add(CLI::App& app) {
                    "unseen (instances not in the database) or database (the default "
                    "database's own instances, seeds 0-1)")
       ->capture_default_str();
-  virtual_group->add_flag("--no-backdrop", no_backdrop, "No backdrop behind the object");
+  virtual_group->add_flag("--no-backdrop", no_backdrop,
+                          "No backdrop behind the object (--table: no wall behind the table)");
+  table.Add(app, true);
   decoder.Add(app);
   triangulation.Add(app);
   auto* live_group = app.add_option_group("live capture (--camera, --virtual)");
@@ -162,6 +165,25 @@ std::unique_ptr<ScanSource> MakeSource(const Flags& flags, const Database& db,
                                          : ReadRigCalibration(flags.calibration_path);
   const PatternOptions patterns =
       flags.patterns.ToOptions(calibration.projector.width, calibration.projector.height);
+  SOPE_CHECK(!flags.table.table || flags.use_virtual,
+             "--table scans virtual tabletop scenes: it needs --virtual (or no source)");
+  if (flags.use_virtual && flags.table.table) {
+    const RecognitionSceneOptions scenes = SceneOptions(flags, db);
+    VirtualTableSourceOptions options;
+    options.calibration = calibration;
+    options.table = flags.table.ToOptions();
+    options.table.backdrop = !flags.no_backdrop;
+    options.objects = flags.table.objects;
+    options.classes = scenes.classes;
+    options.instance_seed_base = scenes.instance_seed_base;
+    options.instance_count = scenes.instance_count;
+    options.seed = flags.seed;
+    options.sensor = TableSensorOptions(flags.seed);
+    options.patterns = patterns;
+    options.rig = flags.live.RigOptions();
+    options.session = flags.live.SessionOptions(cancel);
+    return std::make_unique<VirtualTableSource>(options);
+  }
   if (flags.use_virtual) {
     VirtualSceneSourceOptions options;
     options.calibration = calibration;

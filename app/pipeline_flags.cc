@@ -107,5 +107,26 @@ TriangulationOptions TriangulationFlags::ToOptions() const {
   return result;
 }
 
+void TableFlags::Add(CLI::App& app, bool objects_flag) {
+  app.add_flag("--table", table,
+               "A tabletop scene: objects in stable resting poses on a table seen from 30-60 "
+               "degrees above (simulator/table_scene.h), ground truth of every object");
+  auto* group = app.add_option_group("table scenes (--table)");
+  if (objects_flag) {
+    group->add_option("--objects", objects,
+                      "Procedural objects per table scene (default: 3-5, drawn per scene)");
+  }
+  group->add_option("--clutter", scene.clutter,
+                    "Unknown clutter objects (tori, stones: in no database) on the table")
+      ->capture_default_str();
+  group->add_option("--tilt-min", scene.camera_tilt_deg_min, "Camera tilt range, degrees")
+      ->capture_default_str();
+  group->add_option("--tilt-max", scene.camera_tilt_deg_max, "Camera tilt range, degrees")
+      ->capture_default_str();
+  group->add_option("--table-distance", scene.table_distance,
+                    "Camera centre to the table along the optical axis, metres")
+      ->capture_default_str();
+}
+
 }  // namespace cli
 }  // namespace sope

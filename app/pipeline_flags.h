@@ -9,6 +9,7 @@
 #include "calibration/triangulation.h"
 #include "decoder/decoder.h"
 #include "projector/patterns.h"
+#include "simulator/table_scene.h"
 
 namespace sope {
 namespace cli {
@@ -44,6 +45,17 @@ struct TriangulationFlags {
   std::string method = "midpoint";
   void Add(CLI::App& app);
   TriangulationOptions ToOptions() const;
+};
+
+// Tabletop scenes (`simulate --table`, `scan-and-recognise --virtual --table`): --table,
+// --clutter, --tilt-min/--tilt-max, --table-distance, and with `objects_flag` --objects N.
+struct TableFlags {
+  bool table = false;
+  int objects = 0;  // 0: 3-5 per scene
+  TableSceneOptions scene;
+  void Add(CLI::App& app, bool objects_flag);
+  // scene's clutter, tilt and distance (no objects; seed and backdrop are the caller's).
+  TableSceneOptions ToOptions() const { return scene; }
 };
 
 }  // namespace cli
