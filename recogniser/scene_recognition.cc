@@ -4,8 +4,6 @@
 #include <cmath>
 #include <map>
 #include <mutex>
-#include <cstdio>
-#include <cstdlib>
 #include <unordered_map>
 
 #include <fmt/format.h>
@@ -57,7 +55,19 @@ struct Hypothesis {
   int cluster = 0;
   RecognitionResult recognition;  // the suggestion in front
   double snap = 0.0;
+  bool flipped = false;
 };
+
+// Height of the model's surface centroid above the plane over the model's diameter (the
+// stability prior: lower is more stable).
+double CentreOfMassHeight(const PointCloud& surface, const Rigid3d& cam_from_model,
+                          const TablePlane& plane, double diameter) {
+  if (surface.empty() || !(diameter > 0)) return 0.0;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3f& p : surface.points) sum += p.cast<double>();
+  const Eigen::Vector3d centroid = cam_from_model * (sum / static_cast<double>(surface.size()));
+  return plane.Height(centroid.cast<float>()) / diameter;
+}
 
 }  // namespace
 
@@ -85,6 +95,8 @@ void SceneRecognitionOptions::Check() const {
   SOPE_CHECK(remainder_fraction >= 0 && remainder_fraction <= 1,
              "scene recognition: remainder fraction must be in [0, 1], got {}",
              remainder_fraction);
+  SOPE_CHECK(stability_weight >= 0, "scene recognition: stability weight must be ≥ 0, got {}",
+             stability_weight);
   SOPE_CHECK(scene_leaf > 0 && model_leaf > 0,
              "scene recognition: leaves must be > 0 m, got {} and {}", scene_leaf, model_leaf);
 }
@@ -174,12 +186,40 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
         for (const Eigen::Vector3f& p : surface.points) {
           lowest = std::min(lowest, plane.Height(rotation * p + translation));
         }
-        if (std::getenv("SOPE_DEBUG_SCENE")) std::fprintf(stderr, "cluster %d %s score %.3f lowest %.4f\n", cluster, front.model_name.c_str(), front.score, lowest);
         // Floating above the table or sunk into it: not a resting object.
         if (!std::isfinite(lowest) || std::abs(lowest) > options.max_float) continue;
         if (std::abs(lowest) <= options.max_snap) {
           front.cam_from_model.translation -= static_cast<double>(lowest) * plane.normal.cast<double>();
           h.snap = -lowest;
+        }
+      }
+      if (options.snap_to_plane && plane.found && options.flip_hypotheses) {
+        // The same hypothesis turned upside down (half a turn about a horizontal axis
+        // through its centre), put down on the table: objects whose visible side looks
+        // alike both ways up (a bottle with its top cut off by the image border) are then
+        // decided by the data and, on a tie, by the lower centre of mass (a resting object
+        // rests stably).
+        Hypothesis flipped = h;
+        Suggestion& f = flipped.recognition.suggestions[0];
+        const PointCloud& surface = ModelSurface(f.model, options.model_leaf);
+        const Eigen::Vector3d centre = f.cam_from_model * database_.model(f.model).center;
+        Eigen::Vector3d axis = Eigen::Vector3d::UnitX() -
+                               plane.normal.cast<double>() * plane.normal.cast<double>().x();
+        axis.normalize();
+        const Eigen::Matrix3d turn = Eigen::AngleAxisd(M_PI, axis).toRotationMatrix();
+        f.cam_from_model.rotation = turn * f.cam_from_model.rotation;
+        f.cam_from_model.translation = turn * (f.cam_from_model.translation - centre) + centre;
+        const Eigen::Matrix3f rotation = f.cam_from_model.rotation.cast<float>();
+        const Eigen::Vector3f translation = f.cam_from_model.translation.cast<float>();
+        float lowest = std::numeric_limits<float>::max();
+        for (const Eigen::Vector3f& p : surface.points) {
+          lowest = std::min(lowest, plane.Height(rotation * p + translation));
+        }
+        if (std::isfinite(lowest) && std::abs(lowest) <= options.max_float) {
+          f.cam_from_model.translation -= static_cast<double>(lowest) * plane.normal.cast<double>();
+          flipped.snap = -lowest;
+          flipped.flipped = true;
+          hypotheses.push_back(std::move(flipped));
         }
       }
       hypotheses.push_back(std::move(h));
@@ -193,10 +233,21 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     std::vector<SceneHypothesis> scene_hypotheses;
     for (const Hypothesis& h : hypotheses) {
       const Suggestion& s = h.recognition.suggestions[0];
-      scene_hypotheses.push_back({&ModelSurface(s.model, options.model_leaf), s.cam_from_model});
+      const PointCloud& surface = ModelSurface(s.model, options.model_leaf);
+      const double prior =
+          plane.found ? options.stability_weight *
+                            std::max(0.0, CentreOfMassHeight(surface, s.cam_from_model, plane,
+                                                             database_.model(s.model).diameter))
+                      : 0.0;
+      scene_hypotheses.push_back({&surface, s.cam_from_model, prior});
     }
-    std::vector<HypothesisEvidence> evidence =
-        VerifyHypotheses(scene.points, cloud, scene_hypotheses, options.verification);
+    // The segmentation cut everything below min_height (+ the plane noise) away: model
+    // points there have nothing to fit.
+    const float cut = static_cast<float>(options.segmentation.min_height +
+                                         options.segmentation.plane_distance);
+    std::vector<HypothesisEvidence> evidence = VerifyHypotheses(
+        scene.points, cloud, scene_hypotheses, options.verification,
+        [&plane, cut](const Eigen::Vector3f& p) { return plane.found && plane.Height(p) < cut; });
     result.timing.verify += watch.WallMs();
     return evidence;
   };

@@ -40,6 +40,12 @@ struct SceneRecognitionOptions {
   bool snap_to_plane = true;
   double max_snap = 0.08;
   double max_float = 0.08;
+  // Each hypothesis also upside down (half a turn about a horizontal axis, put down on
+  // the table), and the stability prior of the verification: a hypothesis's gain loses
+  // stability_weight × (height of its centre of mass above the table / its diameter) of
+  // its explained points — of two that explain the scene alike, the lower one wins.
+  bool flip_hypotheses = true;
+  double stability_weight = 0.2;
   // Clusters of more points are evenly subsampled to this many before recognition (the
   // recogniser thins to its 4 mm voxel leaf anyway; a dense scan has ~10 points per voxel).
   int max_recognition_points = 20000;

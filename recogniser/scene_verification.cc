@@ -80,10 +80,10 @@ void SceneVerificationOptions::Check() const {
              box_margin);
 }
 
-std::vector<HypothesisEvidence> VerifyHypotheses(const PointCloud& scene,
-                                                 const PointCloud& observed,
-                                                 const std::vector<SceneHypothesis>& hypotheses,
-                                                 const SceneVerificationOptions& options) {
+std::vector<HypothesisEvidence> VerifyHypotheses(
+    const PointCloud& scene, const PointCloud& observed,
+    const std::vector<SceneHypothesis>& hypotheses, const SceneVerificationOptions& options,
+    const std::function<bool(const Eigen::Vector3f&)>& ignore) {
   options.Check();
   const DepthGrid depth(observed, options.ray_cell);
   const float inlier2 = static_cast<float>(options.inlier_distance * options.inlier_distance);
@@ -109,6 +109,7 @@ std::vector<HypothesisEvidence> VerifyHypotheses(const PointCloud& scene,
       const Eigen::Vector3f p = rotation * model.points[i] + translation;
       const Eigen::Vector3f n = rotation * model.normals[i];
       if (!(p.z() > 0.0f) || n.dot(p) >= 0.0f) continue;
+      if (ignore && ignore(p)) continue;
       ++e.visible;
       const float seen = depth.At(p);
       if (!std::isfinite(seen)) {
@@ -169,7 +170,8 @@ std::vector<HypothesisEvidence> VerifyHypotheses(const PointCloud& scene,
       for (const int j : out[h].explained) duplicates += taken[j];
       const int fresh = static_cast<int>(out[h].explained.size()) - duplicates;
       const double gain = fresh - options.duplicate_weight * duplicates -
-                          options.violation_weight * out[h].violations;
+                          options.violation_weight * out[h].violations -
+                          hypotheses[h].prior_penalty * out[h].explained.size();
       if (gain < options.min_gain_fraction * out[h].explained.size()) continue;
       if (best < 0 || gain > best_gain) {
         best = static_cast<int>(h);

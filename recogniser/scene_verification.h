@@ -18,6 +18,7 @@
 // explained points.
 #pragma once
 
+#include <functional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -54,6 +55,10 @@ struct SceneVerificationOptions {
 struct SceneHypothesis {
   const PointCloud* model_cloud = nullptr;
   Rigid3d cam_from_model;
+  // A prior against the hypothesis, as a fraction of its explained points subtracted from
+  // its gain (e.g. a resting pose with a high centre of mass): between two hypotheses that
+  // explain the scene about equally well, the one with the smaller prior wins.
+  double prior_penalty = 0.0;
 };
 
 struct HypothesisEvidence {
@@ -76,9 +81,12 @@ struct HypothesisEvidence {
 // Verifies `hypotheses` against `scene` (the points to explain: what is above the table,
 // camera frame) and `observed` (everything the camera saw, for free space; may be the
 // same cloud). Returns one evidence per hypothesis, in order. Deterministic.
-std::vector<HypothesisEvidence> VerifyHypotheses(const PointCloud& scene,
-                                                 const PointCloud& observed,
-                                                 const std::vector<SceneHypothesis>& hypotheses,
-                                                 const SceneVerificationOptions& options = {});
+// `ignore` (optional): model points (camera frame) it returns true for are left out of
+// the model-side tests — e.g. the band just above the table, which the segmentation cut
+// away from `scene` (a flat object would otherwise seem not to fit).
+std::vector<HypothesisEvidence> VerifyHypotheses(
+    const PointCloud& scene, const PointCloud& observed,
+    const std::vector<SceneHypothesis>& hypotheses, const SceneVerificationOptions& options = {},
+    const std::function<bool(const Eigen::Vector3f&)>& ignore = {});
 
 }  // namespace sope

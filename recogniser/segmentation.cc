@@ -68,6 +68,7 @@ void TableSegmentationOptions::Check() const {
              cluster_leaf);
   SOPE_CHECK(cluster_tolerance >= 0.0,
              "table segmentation: cluster tolerance must be ≥ 0 m, got {}", cluster_tolerance);
+  SOPE_CHECK(max_points >= 3, "table segmentation: max points must be ≥ 3, got {}", max_points);
   SOPE_CHECK(min_cluster_points >= 1,
              "table segmentation: min cluster points must be ≥ 1, got {}", min_cluster_points);
 }
@@ -91,7 +92,14 @@ TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationO
   const double hi2 = options.max_range * options.max_range;
   std::vector<int> band;
   band.reserve(cloud.size());
+  size_t in_band = 0;
   for (size_t i = 0; i < cloud.size(); ++i) {
+    const double r2 = cloud.points[i].cast<double>().squaredNorm();
+    in_band += r2 >= lo2 && r2 <= hi2;
+  }
+  const size_t keep_every =
+      std::max<size_t>(1, (in_band + options.max_points - 1) / static_cast<size_t>(options.max_points));
+  for (size_t i = 0; i < cloud.size(); i += keep_every) {
     const double r2 = cloud.points[i].cast<double>().squaredNorm();
     if (r2 >= lo2 && r2 <= hi2) band.push_back(static_cast<int>(i));
   }

@@ -46,6 +46,11 @@ struct TableSegmentationOptions {
   double cluster_tolerance = 0.0;
   // Clusters with fewer raw points are dropped (specks, the plane's ragged edge).
   int min_cluster_points = 150;
+  // A cloud of more points (in the band) is evenly subsampled to about this many first
+  // (every k-th point, in cloud order — for a triangulated scan, a regular pixel pattern):
+  // the plane, the clusters and their indices then refer to the kept points. A 1280×720
+  // scan of a table holds ~600k points; recognition thins to 4 mm voxels anyway.
+  int max_points = 150000;
   // Throws sope::Error naming the invalid value.
   void Check() const;
 };
