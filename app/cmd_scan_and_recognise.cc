@@ -122,6 +122,7 @@ ScanAndRecogniseOptions Flags::ControllerOptions(const std::atomic<bool>* cancel
   options.scan.triangulation = triangulation.ToOptions();
   options.scan.triangulation.num_threads = options.scan.decoder.num_threads;
   options.recognition.top_k = top;
+  options.tabletop = table.table;
   if (min_range >= 0) options.min_range = min_range;
   if (max_range >= 0) options.max_range = max_range;
   options.max_scans = MaxScans();
