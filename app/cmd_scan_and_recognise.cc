@@ -169,8 +169,6 @@ std::unique_ptr<ScanSource> MakeSource(const Flags& flags, const Database& db,
   SOPE_CHECK(flags.table.table || flags.table.meshes.empty(), "--mesh needs --table");
   SOPE_CHECK(flags.table.meshes.empty() || flags.table.objects == 0,
              "--objects and --mesh exclude each other (--mesh sets the objects)");
-  SOPE_CHECK(!flags.table.table || flags.use_virtual,
-             "--table scans virtual tabletop scenes: it needs --virtual (or no source)");
   if (flags.use_virtual && flags.table.table) {
     const RecognitionSceneOptions scenes = SceneOptions(flags, db);
     VirtualTableSourceOptions options;

@@ -109,8 +109,13 @@ TriangulationOptions TriangulationFlags::ToOptions() const {
 
 void TableFlags::Add(CLI::App& app, bool objects_flags) {
   app.add_flag("--table", table,
-               "A tabletop scene: objects in stable resting poses on a table seen from 30-60 "
-               "degrees above (simulator/table_scene.h), ground truth of every object");
+               objects_flags
+                   ? "Tabletop scans: segment by the table plane and recognise every object; "
+                     "on the virtual rig, scan tabletop scenes (objects in stable resting "
+                     "poses on a table seen from 30-60 degrees above, truth of every object)"
+                   : "A tabletop scene: objects in stable resting poses on a table seen from "
+                     "30-60 degrees above (simulator/table_scene.h), ground truth of every "
+                     "object");
   auto* group = app.add_option_group("table scenes (--table)");
   if (objects_flags) {
     group->add_option("--objects", objects,
