@@ -7,8 +7,8 @@
 // Peer in the same run on the same frame sets: the single-object path (range band +
 // one recognition, RecogniseFrameSet), so the cost of the tabletop machinery reads as a
 // ratio (table_ratio = table median / single-object median).
-// Input: 4 table scenes (VirtualTableSource, 5 procedural objects each, the database's own
-// instances, no clutter, hard sensor defaults), captured once at start-up (not timed),
+// Input: 4 table scenes (VirtualTableSource, 5 procedural objects each of the six smaller
+// classes, the database's own instances, no clutter, hard sensor defaults), captured once at start-up (not timed),
 // against a database of 10 procedural classes × 1 instance × 80 views built at start-up.
 #include <unistd.h>
 
@@ -22,6 +22,7 @@
 #include <benchmark/benchmark.h>
 
 #include "bench/bench_support.h"
+#include "core/error.h"
 #include "pipeline/scan_source.h"
 #include "recogniser/database.h"
 #include "recogniser/scene_recognition.h"
@@ -67,14 +68,25 @@ const Input& GetInput() {
     VirtualTableSourceOptions source_options;
     source_options.calibration = in.calibration;
     source_options.objects = 5;
-    source_options.classes = ProceduralClassesIn(*in.db);
+    // The smaller classes: five of them fit side by side in what camera and projector see.
+    source_options.classes = {ObjectClass::kMug, ObjectClass::kCan, ObjectClass::kGlass,
+                              ObjectClass::kBottle, ObjectClass::kBowl, ObjectClass::kWineGlass};
     source_options.instance_seed_base = 0;
     source_options.instance_count = 1;
     source_options.table.clutter = 0;
     source_options.patterns.projector_width = in.calibration.projector.width;
     source_options.patterns.projector_height = in.calibration.projector.height;
-    VirtualTableSource source(source_options);
-    for (int k = 0; k < kScenes; ++k) in.scans.push_back(source.Next(k));
+    // Scenes whose objects cannot all be placed are skipped (the next seed).
+    for (uint64_t seed = 1; in.scans.size() < kScenes && seed < 40; ++seed) {
+      source_options.seed = seed;
+      try {
+        VirtualTableSource source(source_options);
+        in.scans.push_back(source.Next(0));
+      } catch (const Error& e) {
+        std::fprintf(stderr, "scene %llu skipped: %s\n", static_cast<unsigned long long>(seed),
+                     e.what());
+      }
+    }
     return owned;
   }();
   return *input;

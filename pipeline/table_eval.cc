@@ -86,7 +86,17 @@ TableEvalSummary RunTableEvaluation(const Database& database, const TableEvalOpt
         procedural = std::make_unique<VirtualTableSource>(source_options);
       }
       ScanAndRecogniseController controller(controller_options, procedural.get(), database);
-      report = controller.Scan(k);
+      try {
+        report = controller.Scan(k);
+      } catch (const Error& e) {
+        // A scene whose objects do not all fit on the visible table is drawn again with
+        // the next seed by the source's next scan; counted, not evaluated.
+        if (std::string(e.what()).find("cannot place") == std::string::npos) throw;
+        spdlog::warn("scene {} skipped: {}", k, e.what());
+        ++summary.skipped_scenes;
+        if (progress) progress(k + 1, options.scenes);
+        continue;
+      }
       if (!controller_options.out_dir.empty()) {
         WriteScanOutputs(controller_options.out_dir, database, &report);
       }
@@ -152,9 +162,10 @@ TableEvalSummary RunTableEvaluation(const Database& database, const TableEvalOpt
 
 std::string TableEvalSummary::Markdown() const {
   std::string md = "# Tabletop evaluation (sope eval --table)\n\n";
-  md += fmt::format("{} scenes scanned through the full virtual-rig pipeline; {} known objects, "
-                    "{} detections, {} clutter objects.\n\n",
-                    scenes, known, detections, clutter);
+  md += fmt::format("{} scenes scanned through the full virtual-rig pipeline ({} skipped: their "
+                    "objects did not fit on the visible table); {} known objects, {} detections, "
+                    "{} clutter objects.\n\n",
+                    scenes, skipped_scenes, known, detections, clutter);
   md += "| figure | value |\n|---|---|\n";
   md += fmt::format("| detection recall (model right, ADD-S < 10% diameter) | {:.1f}% ({}/{}) |\n",
                     100 * recall, correct, known);
@@ -179,6 +190,7 @@ std::string TableEvalSummary::Markdown() const {
 
 std::string TableEvalSummary::Json() const {
   nlohmann::json j = {{"scenes", scenes},
+                      {"skipped_scenes", skipped_scenes},
                       {"known", known},
                       {"detections", detections},
                       {"correct", correct},

@@ -42,6 +42,7 @@ struct TableEvalOptions {
 
 struct TableEvalSummary {
   int scenes = 0;
+  int skipped_scenes = 0;  // procedural scenes whose objects could not all be placed
   int known = 0, detections = 0, correct = 0, class_correct = 0;
   int clutter = 0, clutter_rejected = 0;
   int visible_known = 0, visible_correct = 0;  // known objects ≥ 50% visible

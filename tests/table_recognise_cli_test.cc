@@ -108,6 +108,9 @@ TEST_F(TableRecogniseCli, FindsTheMugOnTheTableAndWritesItsSegment) {
   cam_from_model.rotation.col(2) = up.cast<double>();
   cam_from_model.rotation.col(1) = up.cast<double>().cross(kU.cast<double>());
   cam_from_model.translation = kOrigin.cast<double>();
+  // Turned about the vertical so that the handle shows beside the body.
+  cam_from_model.rotation =
+      cam_from_model.rotation * Eigen::AngleAxisd(-0.6, Eigen::Vector3d::UnitZ()).matrix();
   const TriangleMesh mug = MakeObject(ObjectClass::kMug, 0);
   DepthRenderer renderer(MakePinhole(1280, 960, 1.0));
   renderer.SetMesh(mug);
