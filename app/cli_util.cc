@@ -11,6 +11,7 @@
 
 #include "core/camera_model.h"
 #include "core/error.h"
+#include "core/units.h"
 
 namespace sope {
 namespace cli {
@@ -66,7 +67,7 @@ Rigid3d ParsePose(const std::string& text, const std::string& option) {
   const std::vector<double> v = ParseNumbers(text, option);
   SOPE_CHECK(v.size() == 6, "{} '{}': expected rx,ry,rz,tx,ty,tz (degrees, metres)", option,
              text);
-  constexpr double kDegree = M_PI / 180.0;
+  constexpr double kDegree = kDegToRad;
   return Rigid3d(RotationFromEulerXYZ(v[0] * kDegree, v[1] * kDegree, v[2] * kDegree),
                  Eigen::Vector3d(v[3], v[4], v[5]));
 }

@@ -4,6 +4,7 @@
 
 #include "app/cli_util.h"
 #include "app/commands.h"
+#include "app/option_flags.h"
 #include "core/error.h"
 #include "recogniser/database.h"
 #include "recogniser/tools/database_builder.h"
@@ -27,8 +28,8 @@ int RunBuildDb(int argc, char** argv) {
                "[0.02, 0.75]) are scaled to a 0.25 m diagonal. Unreadable meshes are reported "
                "and skipped.",
                "sope build-db"};
-  std::string models_dir, out, preset = "sope", layout, hash;
-  int views = 0, bits = 0, threads = 0;
+  std::string models_dir, out, preset = "sope";
+  int threads = 0;
   cli::LoggingFlags logging;
   app.add_option("--models", models_dir, "Models directory")->required();
   app.add_option("--out", out, "Database file to write (.sopedb)")->required();
@@ -36,14 +37,12 @@ int RunBuildDb(int argc, char** argv) {
                  "sope (300 Fibonacci viewpoints, ITQ codes of coarse + fine descriptors) or "
                  "thesis (the thesis's 18 viewpoints, features and MLH codes)")
       ->capture_default_str();
-  CLI::Option* views_option =
-      app.add_option("--views", views, "Viewpoints per model (default: the preset's)");
-  CLI::Option* layout_option = app.add_option(
-      "--layout", layout,
-      "Viewpoints: thesis (18 on five declination rings) or fibonacci (any number, even "
-      "sphere sampling); default: thesis for 18 views under --preset thesis, else fibonacci");
-  app.add_option("--hash", hash, "Binary codes: lsh, sh, mlh, bre or itq (default: the preset's)");
-  app.add_option("--bits", bits, "Code length, bits (default: the preset's, 64)");
+  // --views, --layout, --hash and --bits come from the field descriptions of
+  // DatabaseOptions (recogniser/database.cc): bound to a scratch struct, and only those
+  // given are applied over the preset (ResolveDatabaseOptions).
+  DatabaseOptions given;
+  const std::vector<cli::BoundFlag<DatabaseOptions>> bound =
+      cli::AddOptionFlags(app, &given, DatabaseOptions::Fields());
   app.add_option("--threads", threads, "Worker threads describing views (0 = all cores)")
       ->capture_default_str();
   logging.Add(app);
@@ -52,14 +51,27 @@ int RunBuildDb(int argc, char** argv) {
 
   DatabasePresetChoices choices;
   choices.preset = preset;
-  if (views_option->count() > 0) {
-    SOPE_CHECK(views >= 1 && views <= kMaxViewsPerModel, "--views must be in [1, {}], got {}",
-               kMaxViewsPerModel, views);
-    choices.views = views;
+  for (const cli::BoundFlag<DatabaseOptions>& flag : bound) {
+    if (flag.option->count() == 0) continue;
+    const OptionField<DatabaseOptions>& field = *flag.field;
+    if (field.IsNumber()) {
+      SOPE_CHECK(field.InRange(field.Number(given)), "{} must be {}, got {}", field.flag,
+                 field.RangeText(), field.Number(given));
+    }
+    if (field.name == "views_per_model") {
+      SOPE_CHECK(given.views_per_model <= kMaxViewsPerModel, "--views must be in [1, {}], got {}",
+                 kMaxViewsPerModel, given.views_per_model);
+      choices.views = given.views_per_model;
+    } else if (field.name == "layout") {
+      choices.layout = given.layout;
+    } else if (field.name == "hash.method") {
+      choices.hash = given.hash.method;
+    } else if (field.name == "hash.bits") {
+      choices.bits = given.hash.bits;
+    } else {
+      SOPE_THROW("build-db: the flag {} has no preset choice (internal)", field.flag);
+    }
   }
-  if (layout_option->count() > 0) choices.layout = ViewpointLayoutFromString(layout);
-  if (!hash.empty()) choices.hash = HashMethodFromString(hash);
-  if (bits != 0) choices.bits = bits;
   SOPE_CHECK(threads >= 0 && threads <= kMaxThreads, "--threads must be in [0, {}], got {}",
              kMaxThreads, threads);
   const DatabaseOptions options = ResolveDatabaseOptions(choices);

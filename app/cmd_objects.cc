@@ -16,6 +16,7 @@
 #include "core/camera_model.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/units.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/virtual_rig.h"
 
@@ -25,7 +26,7 @@ namespace {
 using Eigen::Vector2d;
 using Eigen::Vector3d;
 
-constexpr double kDegree = 3.14159265358979323846 / 180.0;
+constexpr double kDegree = kDegToRad;
 
 // Normal-shaded view (colour = 128 + 127·normal, camera frame) of `mesh` from `elevation`,
 // `azimuth` (radians) at `distance` metres (0: by the object's size), cropped to the

@@ -5,14 +5,25 @@
 //    alone: once the reporter is made, everything else the process prints on stdout
 //    (printf, fmt::print, std::cout, summaries) goes to stderr, so `prog
 //    --benchmark_format=json | python3 -m json.tool` parses.
+//  - MedianTimesReporter: a DisplayReporter that also keeps each benchmark's real and CPU
+//    time and counters (the median over repetitions where there are some) for a summary;
+//  - ReadEveryByte(): the memory-bandwidth bound of a decoder (every frame byte read once);
 //  - SOPE_BENCHMARK_MAIN(): BENCHMARK_MAIN() with that reporter.
 #pragma once
 
+#include <cstddef>
+#include <cstdint>
+#include <map>
 #include <memory>
 #include <ostream>
+#include <string>
 #include <vector>
 
 #include <benchmark/benchmark.h>
+
+namespace cv {
+class Mat;
+}  // namespace cv
 
 namespace sope {
 namespace bench {
@@ -37,6 +48,39 @@ class DisplayReporter : public benchmark::BenchmarkReporter {
   bool console_ = true;
   std::unique_ptr<std::ostream> report_stream_;
 };
+
+// Keeps the real and CPU time (ms) and the counters of every benchmark for a summary: the
+// median over the repetitions where there are some, else the first run. Keys are
+// "BM_Name" or "BM_Name/arg:1/…" (the run name without aggregate suffix).
+class MedianTimesReporter : public DisplayReporter {
+ public:
+  struct Times {
+    double real_ms = 0.0;
+    double cpu_ms = 0.0;  // of the benchmark's main thread
+    std::map<std::string, double> counters;
+    // A counter's value; 0 when the benchmark did not set it.
+    double Counter(const std::string& name) const;
+  };
+  using DisplayReporter::DisplayReporter;
+
+  void ReportRuns(const std::vector<Run>& runs) override;
+  // Zeros when the benchmark did not run (filtered out).
+  Times Get(const std::string& key) const;
+
+ private:
+  std::map<std::string, Times> times_;
+};
+
+// Reads every byte of `images` once (8-bit frames; their maximum, so that the loop cannot
+// be optimised away): the memory-bandwidth bound of a decoder that reads each frame byte
+// once. Returns the largest level seen.
+uint8_t ReadEveryByte(const std::vector<cv::Mat>& images);
+
+// The bytes of `images` (every frame, whatever its depth and channels).
+size_t FrameBytes(const std::vector<cv::Mat>& images);
+// Rate counters of a decoder benchmark that reads `images` once per iteration: pixels/s
+// (one frame's pixels) and frame_bytes/s (every frame's bytes, in 1024 units).
+void SetFrameRateCounters(benchmark::State& state, const std::vector<cv::Mat>& images);
 
 }  // namespace bench
 }  // namespace sope

@@ -103,18 +103,10 @@ const BenchInput& Input() {
 }
 
 size_t Pixels() { return Input().frame_set.images.front().total(); }
-size_t FrameBytes() {
-  size_t bytes = 0;
-  for (const cv::Mat& image : Input().frame_set.images) bytes += image.total() * image.elemSize();
-  return bytes;
-}
+size_t FrameBytes() { return bench::FrameBytes(Input().frame_set.images); }
 
 void SetCounters(benchmark::State& state) {
-  state.counters["pixels/s"] = benchmark::Counter(static_cast<double>(Pixels()),
-                                                  benchmark::Counter::kIsIterationInvariantRate);
-  state.counters["frame_bytes/s"] = benchmark::Counter(
-      static_cast<double>(FrameBytes()), benchmark::Counter::kIsIterationInvariantRate,
-      benchmark::Counter::kIs1024);
+  bench::SetFrameRateCounters(state, Input().frame_set.images);
   state.SetLabel(Input().source);
 }
 
@@ -198,17 +190,7 @@ BENCHMARK(BM_OpenCvGetProjPixel)->Unit(benchmark::kMillisecond)->UseRealTime()->
 // memory-bound), and memcpy every frame (read + write).
 void BM_ReadAllFrames(benchmark::State& state) {
   const FrameSet& set = Input().frame_set;
-  for (auto _ : state) {
-    uint8_t max_level = 0;
-    for (const cv::Mat& image : set.images) {
-      const uint8_t* __restrict data = image.ptr<uint8_t>();
-      const size_t size = image.total();
-      uint8_t local = 0;
-      for (size_t i = 0; i < size; ++i) local = std::max(local, data[i]);
-      max_level = std::max(max_level, local);
-    }
-    benchmark::DoNotOptimize(max_level);
-  }
+  for (auto _ : state) benchmark::DoNotOptimize(bench::ReadEveryByte(set.images));
   SetCounters(state);
 }
 BENCHMARK(BM_ReadAllFrames)
@@ -237,36 +219,7 @@ BENCHMARK(BM_CopyAllFrames)
     ->Repetitions(kRepetitions)
     ->ReportAggregatesOnly(true);
 
-// Keeps the real and CPU time (ms) of every benchmark for the summary: the median over the
-// repetitions where there are some, else the single run.
-class SummaryReporter : public bench::DisplayReporter {
- public:
-  struct Times {
-    double real_ms = 0.0;
-    double cpu_ms = 0.0;  // of the benchmark's main thread
-  };
-
-  void ReportRuns(const std::vector<Run>& runs) override {
-    for (const Run& run : runs) {
-      if (run.error_occurred) continue;
-      std::string key = run.run_name.function_name;
-      if (!run.run_name.args.empty()) key += "/" + run.run_name.args;
-      const bool median = run.run_type == Run::RT_Aggregate && run.aggregate_name == "median";
-      if (median || (run.run_type == Run::RT_Iteration && times_.count(key) == 0)) {
-        times_[key] = {run.GetAdjustedRealTime(), run.GetAdjustedCPUTime()};
-      }
-    }
-    DisplayReporter::ReportRuns(runs);
-  }
-  // Zeros when the benchmark did not run (filtered out).
-  Times Get(const std::string& key) const {
-    const auto it = times_.find(key);
-    return it == times_.end() ? Times{} : it->second;
-  }
-
- private:
-  std::map<std::string, Times> times_;
-};
+using SummaryReporter = bench::MedianTimesReporter;
 
 // Ratios use CPU time: on a shared machine the wall clock of a single-threaded run also
 // counts the time other processes held its core.

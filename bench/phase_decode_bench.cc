@@ -21,6 +21,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/structured_light.hpp>
 
+#include "bench/bench_support.h"
 #include "decoder/decoder.h"
 #include "decoder/phase_decoder.h"
 #include "projector/patterns.h"
@@ -87,18 +88,10 @@ const BenchInput& Input() {
 }
 
 size_t Pixels() { return Input().ours.images.front().total(); }
-size_t FrameBytes() {
-  size_t bytes = 0;
-  for (const cv::Mat& image : Input().ours.images) bytes += image.total() * image.elemSize();
-  return bytes;
-}
+size_t FrameBytes() { return bench::FrameBytes(Input().ours.images); }
 
 void SetCounters(benchmark::State& state) {
-  state.counters["pixels/s"] = benchmark::Counter(static_cast<double>(Pixels()),
-                                                  benchmark::Counter::kIsIterationInvariantRate);
-  state.counters["frame_bytes/s"] = benchmark::Counter(
-      static_cast<double>(FrameBytes()), benchmark::Counter::kIsIterationInvariantRate,
-      benchmark::Counter::kIs1024);
+  bench::SetFrameRateCounters(state, Input().ours.images);
 }
 
 // Args: threads, speckle filter on/off.
@@ -154,17 +147,7 @@ void BM_OpenCvSinusoidalPattern(benchmark::State& state) {
 BENCHMARK(BM_OpenCvSinusoidalPattern)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);
 
 void BM_ReadAllFrames(benchmark::State& state) {
-  for (auto _ : state) {
-    uint8_t max_level = 0;
-    for (const cv::Mat& image : Input().ours.images) {
-      const uint8_t* __restrict data = image.ptr<uint8_t>();
-      const size_t size = image.total();
-      uint8_t local = 0;
-      for (size_t i = 0; i < size; ++i) local = std::max(local, data[i]);
-      max_level = std::max(max_level, local);
-    }
-    benchmark::DoNotOptimize(max_level);
-  }
+  for (auto _ : state) benchmark::DoNotOptimize(bench::ReadEveryByte(Input().ours.images));
   SetCounters(state);
 }
 BENCHMARK(BM_ReadAllFrames)
@@ -173,32 +156,7 @@ BENCHMARK(BM_ReadAllFrames)
     ->Repetitions(kRepetitions)
     ->ReportAggregatesOnly(true);
 
-class SummaryReporter : public benchmark::ConsoleReporter {
- public:
-  struct Times {
-    double real_ms = 0.0;
-    double cpu_ms = 0.0;
-  };
-  void ReportRuns(const std::vector<Run>& runs) override {
-    for (const Run& run : runs) {
-      if (run.error_occurred) continue;
-      std::string key = run.run_name.function_name;
-      if (!run.run_name.args.empty()) key += "/" + run.run_name.args;
-      const bool median = run.run_type == Run::RT_Aggregate && run.aggregate_name == "median";
-      if (median || (run.run_type == Run::RT_Iteration && times_.count(key) == 0)) {
-        times_[key] = {run.GetAdjustedRealTime(), run.GetAdjustedCPUTime()};
-      }
-    }
-    ConsoleReporter::ReportRuns(runs);
-  }
-  Times Get(const std::string& key) const {
-    const auto it = times_.find(key);
-    return it == times_.end() ? Times{} : it->second;
-  }
-
- private:
-  std::map<std::string, Times> times_;
-};
+using SummaryReporter = bench::MedianTimesReporter;
 
 // Ratios of CPU time (single-threaded runs; the machines are shared).
 void PrintSummary(const SummaryReporter& reporter) {

@@ -187,37 +187,8 @@ BENCHMARK(BM_TriangulatorSetUp)
     ->Repetitions(5)
     ->ReportAggregatesOnly(true);
 
-// Keeps the median CPU time (ms) and points of every benchmark for the summary.
-class SummaryReporter : public bench::DisplayReporter {
- public:
-  struct Entry {
-    double cpu_ms = 0.0;
-    double real_ms = 0.0;
-    double points = 0.0;
-  };
-  void ReportRuns(const std::vector<Run>& runs) override {
-    for (const Run& run : runs) {
-      if (run.error_occurred) continue;
-      std::string key = run.run_name.function_name;
-      if (!run.run_name.args.empty()) key += "/" + run.run_name.args;
-      const bool median = run.run_type == Run::RT_Aggregate && run.aggregate_name == "median";
-      if (median || (run.run_type == Run::RT_Iteration && entries_.count(key) == 0)) {
-        Entry entry{run.GetAdjustedCPUTime(), run.GetAdjustedRealTime(), 0.0};
-        const auto points = run.counters.find("points");
-        if (points != run.counters.end()) entry.points = points->second.value;
-        entries_[key] = entry;
-      }
-    }
-    DisplayReporter::ReportRuns(runs);
-  }
-  Entry Get(const std::string& key) const {
-    const auto it = entries_.find(key);
-    return it == entries_.end() ? Entry{} : it->second;
-  }
-
- private:
-  std::map<std::string, Entry> entries_;
-};
+// Keeps the median CPU time (ms) and counters (points) of every benchmark for the summary.
+using SummaryReporter = bench::MedianTimesReporter;
 
 // Ratios use CPU time (medians of 5): on a shared machine the wall clock of a
 // single-threaded run also counts the time other processes held its core.
@@ -231,8 +202,8 @@ void PrintSummary(const SummaryReporter& reporter) {
     const auto tables = reporter.Get(fmt::format("BM_Triangulate/method:{}/tables:1", method));
     if (exact.cpu_ms <= 0.0 || tables.cpu_ms <= 0.0) continue;
     fmt::print("  {:<22} {:>9.2f} {:>12.2f} {:>9.2f} {:>12.2f} {:>7.1f}x\n", names[method],
-               exact.cpu_ms, exact.points / exact.cpu_ms * 1e-3, tables.cpu_ms,
-               tables.points / tables.cpu_ms * 1e-3, exact.cpu_ms / tables.cpu_ms);
+               exact.cpu_ms, exact.Counter("points") / exact.cpu_ms * 1e-3, tables.cpu_ms,
+               tables.Counter("points") / tables.cpu_ms * 1e-3, exact.cpu_ms / tables.cpu_ms);
   }
   fmt::print("  wall clock (exact on 1 thread; tables on 1 and 2 threads):\n");
   for (int method = 0; method < 3; ++method) {
@@ -243,8 +214,8 @@ void PrintSummary(const SummaryReporter& reporter) {
     fmt::print("  {:<22} exact {:.2f} ms; tables 1 thread {:.2f} ms ({:.1f}x, {:.1f} Mpt/s), "
                "2 threads {:.2f} ms ({:.1f}x, {:.1f} Mpt/s)\n",
                names[method], exact.real_ms, one.real_ms, exact.real_ms / one.real_ms,
-               one.points / one.real_ms * 1e-3, two.real_ms, exact.real_ms / two.real_ms,
-               two.points / two.real_ms * 1e-3);
+               one.Counter("points") / one.real_ms * 1e-3, two.real_ms, exact.real_ms / two.real_ms,
+               two.Counter("points") / two.real_ms * 1e-3);
   }
   const auto batch = reporter.Get("BM_Decode");
   const auto last = reporter.Get("BM_DecodeIncremental/last_frame_only:1");

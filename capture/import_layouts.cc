@@ -14,11 +14,11 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/units.h"
 
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 // SLStudio's constants (src/codec/CodecGrayCode.cpp: Nhorz, Nvert; CodecPhaseShift2x3.cpp
 // and CodecCalibration.cpp: nPhases).
 constexpr int kSlStudioGrayBitsX = 10;

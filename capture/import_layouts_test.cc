@@ -27,14 +27,15 @@
 #include "capture/foreign_calibration.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/units.h"
 #include "decoder/decoder.h"
 #include "projector/patterns.h"
+#include "tests/opencv_graycode.h"
 #include "tests/test_support.h"
 
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 void WriteImages(const std::string& directory, const std::vector<cv::Mat>& images,
                  const std::function<std::string(size_t)>& name) {
@@ -45,6 +46,22 @@ void WriteImages(const std::string& directory, const std::vector<cv::Mat>& image
 }
 
 // Decodes our own pattern sequence with `options` shown straight to the camera.
+ImportOptions ProjectorOptions(ImportLayout layout, int width, int height) {
+  ImportOptions options;
+  options.layout = layout;
+  options.projector_width = width;
+  options.projector_height = height;
+  return options;
+}
+
+// `images` written to scratch/capture (named by `name`), imported into scratch/frames.
+ImportSummary WriteAndImport(const testing::ScratchDir& scratch, const std::vector<cv::Mat>& images,
+                             const std::function<std::string(size_t)>& name,
+                             const ImportOptions& options) {
+  WriteImages(scratch.File("capture"), images, name);
+  return ImportCapture(scratch.File("capture"), options, scratch.File("frames"));
+}
+
 CorrespondenceMap DecodeOwnPatterns(const PatternOptions& options) {
   FrameSet set;
   set.manifest =
@@ -85,17 +102,10 @@ class OpenCvImport : public ::testing::TestWithParam<cv::Size> {};
 
 TEST_P(OpenCvImport, GeneratedSequenceDecodesLikeOurPatterns) {
   const cv::Size projector = GetParam();
-  cv::structured_light::GrayCodePattern::Params params;
-  params.width = projector.width;
-  params.height = projector.height;
-  const cv::Ptr<cv::structured_light::GrayCodePattern> opencv =
-      cv::structured_light::GrayCodePattern::create(params);
-  std::vector<cv::Mat> sequence;
-  ASSERT_TRUE(opencv->generate(sequence));
-  cv::Mat black, white;
-  opencv->getImagesForShadowMasks(black, white);
-  sequence.push_back(white);  // OpenCV's capture sample: patterns, white, black
-  sequence.push_back(black);
+  const testing::OpenCvGrayCodeSequence opencv = testing::GenerateOpenCvGrayCode(projector);
+  ASSERT_FALSE(opencv.patterns.empty());
+  const std::vector<cv::Mat> sequence = opencv.CaptureOrder();  // patterns, white, black
+  const cv::Mat& white = opencv.white;
   // Unpadded numbers as OpenCV's sample and the statue capture name them (im1 … im44):
   // name order must put im10 after im9.
   testing::ScratchDir scratch;
@@ -297,13 +307,9 @@ TEST(SlStudioImport, GrayCodeSequenceDecodesLikeOurPatterns) {
   // leaves out one low bit on each axis (step 2).
   const int width = 1100, height = 70;
   testing::ScratchDir scratch;
-  WriteImages(scratch.File("capture"), SlStudioGrayCode(width, height),
-              [](size_t i) { return fmt::format("frame{}.bmp", i); });
-  ImportOptions options;
-  options.layout = ImportLayout::kSlStudioGrayCode;
-  options.projector_width = width;
-  options.projector_height = height;
-  ImportCapture(scratch.File("capture"), options, scratch.File("frames"));
+  ImportOptions options = ProjectorOptions(ImportLayout::kSlStudioGrayCode, width, height);
+  WriteAndImport(scratch, SlStudioGrayCode(width, height),
+                 [](size_t i) { return fmt::format("frame{}.bmp", i); }, options);
   const CorrespondenceMap theirs = Decode(LoadFrameSet(scratch.File("frames")));
   PatternOptions own;
   own.projector_width = width;
@@ -401,14 +407,11 @@ TEST(SlStudioImport, TwoByThreePhaseManifestDescribesSlStudiosPatterns) {
   // DESIGN.md's example: a 1824-wide projector's x groups at periods 114 and 1824.
   const int width = 1824, height = 64;
   testing::ScratchDir scratch;
-  WriteImages(scratch.File("capture"), SlStudioTwoByThree(width, height),
-              [](size_t i) { return fmt::format("{:02}.png", i); });
-  ImportOptions options;
-  options.layout = ImportLayout::kSlStudioPhaseShift2x3;
-  options.projector_width = width;
-  options.projector_height = height;
+  const ImportOptions options =
+      ProjectorOptions(ImportLayout::kSlStudioPhaseShift2x3, width, height);
   const ImportSummary summary =
-      ImportCapture(scratch.File("capture"), options, scratch.File("frames"));
+      WriteAndImport(scratch, SlStudioTwoByThree(width, height),
+                     [](size_t i) { return fmt::format("{:02}.png", i); }, options);
   EXPECT_TRUE(summary.has_phase);
   EXPECT_EQ(summary.images, 12u);
   const nlohmann::json root = nlohmann::json::parse(
@@ -433,6 +436,26 @@ TEST(SlStudioImport, TwoByThreePhaseManifestDescribesSlStudiosPatterns) {
   }
   EXPECT_LT(worst_x, 0.5);
   EXPECT_LT(worst_y, 0.5);
+
+  // sope's phase decoder (Decode → DecodePhase) reads the imported set to the same
+  // projector coordinates (camera = projector here): every pixel, within the same 8-bit
+  // quantisation bound.
+  const CorrespondenceMap decoded = Decode(LoadFrameSet(scratch.File("frames")));
+  ASSERT_TRUE(decoded.HasX() && decoded.HasY());
+  ASSERT_EQ(decoded.mask.size(), cv::Size(width, height));
+  double decoded_x = 0.0, decoded_y = 0.0;
+  size_t valid = 0;
+  for (int v = 0; v < height; ++v) {
+    for (int u = 0; u < width; ++u) {
+      if (decoded.mask.at<uint8_t>(v, u) == 0) continue;
+      ++valid;
+      decoded_x = std::max(decoded_x, std::abs(double{decoded.proj_x.at<float>(v, u)} - u));
+      decoded_y = std::max(decoded_y, std::abs(double{decoded.proj_y.at<float>(v, u)} - v));
+    }
+  }
+  EXPECT_EQ(valid, static_cast<size_t>(width) * height);
+  EXPECT_LT(decoded_x, 0.5);
+  EXPECT_LT(decoded_y, 0.5);
 
   // One image missing: one clear error.
   std::filesystem::remove(scratch.File("capture/11.png"));

@@ -8,6 +8,7 @@
 #include <opencv2/core/eigen.hpp>
 
 #include "core/error.h"
+#include "core/units.h"
 #include "tests/test_support.h"
 
 namespace sope {
@@ -78,7 +79,7 @@ TEST(CameraModel, CheckRejectsInvalidModels) {
 }
 
 TEST(CameraModel, MakePinholeHasTheRequestedFieldOfView) {
-  const CameraModel model = MakePinhole(640, 480, M_PI / 2);
+  const CameraModel model = MakePinhole(640, 480, kPi / 2);
   EXPECT_NEAR(model.fx(), 320.0, 1e-9);
   EXPECT_NEAR(model.cx(), 319.5, 1e-9);
 }

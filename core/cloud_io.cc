@@ -85,6 +85,7 @@ void ValidatePcdHeader(const std::string& data, const std::string& path) {
   bool have_width = false, have_points = false;
   std::string encoding;
   size_t offset = 0;
+  int line_number = 0;
   while (encoding.empty()) {
     SOPE_CHECK(offset < data.size(), "point cloud {}: PCD header ends before its DATA line",
                path);
@@ -92,6 +93,13 @@ void ValidatePcdHeader(const std::string& data, const std::string& path) {
     if (end == std::string::npos) end = data.size();
     std::string line = data.substr(offset, end - offset);
     offset = end + 1;
+    ++line_number;
+    // PCL's reader skips only truly empty lines: one of blanks or a lone carriage return
+    // makes PCDReader::read dereference null (found by pcd_fuzz; PCL 1.13).
+    SOPE_CHECK(line.empty() || line.find_first_not_of(" \t\r\v\f") != std::string::npos,
+               "point cloud {}: PCD header line {} is blank but not empty (only spaces or a "
+               "carriage return)",
+               path, line_number);
     if (!line.empty() && line.back() == '\r') line.pop_back();
     const std::vector<std::string> words = Words(line);
     if (words.empty() || words[0][0] == '#') continue;

@@ -124,6 +124,9 @@ TEST(CloudIo, MalformedPcdHeadersAreClearErrors) {
       {"hello world", "not a PCD file"},
       {"VERSION 0.7\n", "ends before its DATA line"},
       {"VERSION 0.7", "ends before its DATA line"},
+      // pcd_fuzz (crash-7ee1a620…): a lone "\r" header line crashed PCL's reader (SEGV).
+      {"##}\r\n\r\n\n" + header + "DATA ascii\n0 0 1\n0 0 1\n0 0 1\n", "line 2 is blank"},
+      {header + "   \nDATA ascii\n0 0 1\n0 0 1\n0 0 1\n", "line 11 is blank"},
       {header + "DATA binary\n" + std::string(20, '\0'), "truncated"},
       {header + "DATA ascii\n0 0 0.5\n", "truncated"},
       {header + "DATA binary_compressed\n", "compressed data truncated"},

@@ -25,6 +25,21 @@ namespace fs = std::filesystem;
 
 // A staged build older than this is left over by a killed process: removed.
 constexpr auto kStaleStagingAge = std::chrono::hours(1);
+// Every cache entry holds this file (written first): StagedDirectory replaces an existing
+// entry only when it is there, i.e. sope wrote it.
+constexpr char kEntryMarker[] = ".sope-default-database";
+
+// Entries written before the marker existed hold only models/ and (when complete)
+// db.sopedb; such an entry is sope's too and may be replaced. Anything else is not.
+bool IsOwnEntry(const std::string& directory) {
+  std::error_code error;
+  if (fs::is_regular_file(JoinPath(directory, kEntryMarker), error)) return true;
+  for (const fs::directory_entry& entry : fs::directory_iterator(directory, error)) {
+    const std::string name = entry.path().filename().string();
+    if (name != "models" && name != "db.sopedb") return false;
+  }
+  return !error;
+}
 
 DatabaseOptions DefaultBuildOptions(const DefaultDatabaseOptions& options) {
   DatabaseOptions db = DatabaseOptions::Preset("sope");
@@ -63,6 +78,8 @@ void RemoveStaleStaging(const std::string& root, const std::string& name) {
 // final place, `directory`/models/… (the overlay draws them).
 void BuildEntry(const DefaultDatabaseOptions& options, const std::string& staging,
                 const std::string& directory, const BuildProgress& progress) {
+  WriteFileAtomic(JoinPath(staging, kEntryMarker),
+                  "sope default-database cache entry (sope scan-and-recognise)\n");
   const std::string models = JoinPath(staging, "models");
   WriteProceduralModels(models, options.instances, options.seed);
   if (!options.classes.empty()) {
@@ -150,9 +167,10 @@ std::string EnsureDefaultDatabase(const DefaultDatabaseOptions& options,
                directory, classes, options.instances, options.views);
   const std::string root = fs::path(directory).parent_path().string();
   RemoveStaleStaging(root, fs::path(directory).filename().string());
-  // The entry is sope's own (a virtual-db-* directory in sope's cache): an incomplete one
-  // may be replaced.
-  StagedDirectory staged(directory, [](const std::string&) { return true; });
+  // An incomplete entry may be replaced when sope wrote it (its marker, or the layout of
+  // entries from before the marker); a directory of the user's under the same name is
+  // refused with one error, never deleted.
+  StagedDirectory staged(directory, IsOwnEntry);
   BuildEntry(options, staged.path(), directory, progress);
   staged.Commit();  // replaces an incomplete entry only now
   return db_path;

@@ -136,6 +136,32 @@ TEST(DefaultDatabase, AnIncompleteEntryIsDetectedAndRebuilt) {
   EXPECT_EQ(IncompleteDefaultDatabaseReason(directory), "");
 }
 
+// Every entry carries sope's marker file; a directory of the user's that happens to stand
+// where an entry goes (no marker, files sope does not write) is refused, never deleted.
+TEST(DefaultDatabase, EntriesAreMarkedAndAUsersDirectoryIsNeverReplaced) {
+  testing::ScratchDir scratch;
+  const DefaultDatabaseOptions options = Tiny(scratch);
+  const std::string directory = DefaultDatabaseDirectory(options);
+  WriteFileAtomic(directory + "/thesis.tex", "mine\n");
+  try {
+    EnsureDefaultDatabase(options);
+    ADD_FAILURE() << "a user's directory was replaced";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find(directory), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("did not write"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(ReadFileToString(directory + "/thesis.tex", "user file"), "mine\n");
+  EXPECT_EQ(StagedBuilds(options.cache_root), 0);
+
+  fs::remove_all(directory);
+  EnsureDefaultDatabase(options);
+  EXPECT_TRUE(fs::is_regular_file(directory + "/.sope-default-database"));
+  // A marked entry whose database went missing is sope's: rebuilt.
+  fs::remove(directory + "/db.sopedb");
+  EnsureDefaultDatabase(options);
+  EXPECT_EQ(IncompleteDefaultDatabaseReason(directory), "");
+}
+
 TEST(DefaultDatabase, BadOptionsAndNoCacheDirectoryAreNamed) {
   DefaultDatabaseOptions options;
   options.views = 0;

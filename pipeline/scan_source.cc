@@ -1,7 +1,6 @@
 #include "pipeline/scan_source.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cstdlib>
 #include <utility>
 
@@ -10,16 +9,13 @@
 
 #include "calibration/scan.h"
 #include "core/error.h"
+#include "core/stopwatch.h"
 #include "simulator/virtual_rig.h"
 
 namespace sope {
 namespace {
 
-double NowMs() {
-  return std::chrono::duration<double, std::milli>(
-             std::chrono::steady_clock::now().time_since_epoch())
-      .count();
-}
+double NowMs() { return Stopwatch::NowMs(CLOCK_MONOTONIC); }  // core/stopwatch.h
 
 RigSession::Progress SessionProgress(const CaptureProgress& progress) {
   if (!progress) return {};

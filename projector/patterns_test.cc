@@ -14,6 +14,7 @@
 #include <opencv2/structured_light.hpp>
 
 #include "core/error.h"
+#include "tests/opencv_graycode.h"
 #include "tests/test_support.h"
 
 namespace sope {
@@ -137,20 +138,25 @@ struct SequenceCase {
   bool inverted;
   bool white_black;
   int skip_low_bits;
+
+  PatternOptions Options() const {
+    PatternOptions options;
+    options.projector_width = width;
+    options.projector_height = height;
+    options.axes = axes;
+    options.code = code;
+    options.inverted = inverted;
+    options.white_black = white_black;
+    options.skip_low_bits = skip_low_bits;
+    return options;
+  }
 };
 
 class PatternSequence : public ::testing::TestWithParam<SequenceCase> {};
 
 TEST_P(PatternSequence, CountsOrderImagesAndManifestAgree) {
   const SequenceCase& c = GetParam();
-  PatternOptions options;
-  options.projector_width = c.width;
-  options.projector_height = c.height;
-  options.axes = c.axes;
-  options.code = c.code;
-  options.inverted = c.inverted;
-  options.white_black = c.white_black;
-  options.skip_low_bits = c.skip_low_bits;
+  const PatternOptions options = c.Options();
   const std::vector<Pattern> patterns = GeneratePatterns(options);
   const std::vector<FrameInfo> expected = ExpectedFrames(options);
   ASSERT_EQ(patterns.size(), expected.size());
@@ -189,14 +195,7 @@ TEST_P(PatternSequence, CountsOrderImagesAndManifestAgree) {
 // the bits, read most significant first from the frames, Gray → binary, give x (or y).
 TEST_P(PatternSequence, FramesDecodeToEveryProjectorCoordinate) {
   const SequenceCase& c = GetParam();
-  PatternOptions options;
-  options.projector_width = c.width;
-  options.projector_height = c.height;
-  options.axes = c.axes;
-  options.code = c.code;
-  options.inverted = c.inverted;
-  options.white_black = c.white_black;
-  options.skip_low_bits = c.skip_low_bits;
+  const PatternOptions options = c.Options();
   const std::vector<Pattern> patterns = GeneratePatterns(options);
   for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
     const int size = axis == PatternAxis::kX ? c.width : c.height;
@@ -246,17 +245,11 @@ class OpenCvGrayCode : public ::testing::TestWithParam<cv::Size> {};
 
 TEST_P(OpenCvGrayCode, ManifestMatchesGenerateImageForImage) {
   const cv::Size projector = GetParam();
-  cv::structured_light::GrayCodePattern::Params params;
-  params.width = projector.width;
-  params.height = projector.height;
-  const cv::Ptr<cv::structured_light::GrayCodePattern> opencv =
-      cv::structured_light::GrayCodePattern::create(params);
-  std::vector<cv::Mat> generated;
-  ASSERT_TRUE(opencv->generate(generated));
-  cv::Mat black, white;
-  opencv->getImagesForShadowMasks(black, white);
-  const size_t num_patterns = opencv->getNumberOfPatternImages();
-  ASSERT_EQ(generated.size(), num_patterns);
+  const testing::OpenCvGrayCodeSequence opencv = testing::GenerateOpenCvGrayCode(projector);
+  const cv::Mat& white = opencv.white;
+  const cv::Mat& black = opencv.black;
+  const size_t num_patterns = testing::MakeOpenCvGrayCode(projector)->getNumberOfPatternImages();
+  ASSERT_EQ(opencv.patterns.size(), num_patterns);
   const size_t expected_patterns =
       2 * static_cast<size_t>(BitsForSize(projector.width) + BitsForSize(projector.height));
   ASSERT_EQ(num_patterns, expected_patterns);
@@ -267,9 +260,7 @@ TEST_P(OpenCvGrayCode, ManifestMatchesGenerateImageForImage) {
       MakeOpenCvGrayCodeManifest(projector.width, projector.height, 640, 480, files);
   ASSERT_EQ(manifest.frames.size(), num_patterns + 2);
   // OpenCV's captures in capture order: the patterns, white, black.
-  std::vector<cv::Mat> opencv_sequence = generated;
-  opencv_sequence.push_back(white);
-  opencv_sequence.push_back(black);
+  const std::vector<cv::Mat> opencv_sequence = opencv.CaptureOrder();
   for (size_t i = 0; i < opencv_sequence.size(); ++i) {
     const FrameInfo& frame = manifest.frames[i];
     SCOPED_TRACE(fmt::format("image {} ({}, {} bit {}{})", i, ToString(frame.role),
@@ -299,11 +290,8 @@ TEST_P(OpenCvGrayCode, GetProjPixelDecodesOurFrames) {
   const cv::Size projector = GetParam();
   // Every pixel of small projectors, every third column and row of large ones.
   const int stride = projector.area() > 100000 ? 3 : 1;
-  cv::structured_light::GrayCodePattern::Params params;
-  params.width = projector.width;
-  params.height = projector.height;
   const cv::Ptr<cv::structured_light::GrayCodePattern> opencv =
-      cv::structured_light::GrayCodePattern::create(params);
+      testing::MakeOpenCvGrayCode(projector);
   std::vector<std::string> files;
   for (size_t i = 0; i < opencv->getNumberOfPatternImages() + 2; ++i) {
     files.push_back(fmt::format("{}.png", i));

@@ -23,6 +23,7 @@
 #include "core/mesh.h"
 #include "core/point_cloud.h"
 #include "core/rig_calibration.h"
+#include "core/units.h"
 #include "decoder/decoder.h"
 #include "projector/patterns.h"
 #include "recogniser/database.h"
@@ -283,8 +284,8 @@ py::dict SuggestionToDict(const Suggestion& suggestion) {
   result["model"] = suggestion.model_name;
   result["view"] = suggestion.view;
   result["score"] = suggestion.score;
-  result["theta_deg"] = suggestion.viewpoint.theta * 180.0 / 3.14159265358979323846;
-  result["phi_deg"] = suggestion.viewpoint.phi * 180.0 / 3.14159265358979323846;
+  result["theta_deg"] = RadToDeg(suggestion.viewpoint.theta);
+  result["phi_deg"] = RadToDeg(suggestion.viewpoint.phi);
   result["pose"] = PoseToArray(suggestion.cam_from_model);  // X_cam = pose · X_model
   result["posed"] = suggestion.posed;
   result["refined"] = suggestion.refined;

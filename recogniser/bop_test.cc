@@ -10,11 +10,11 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "core/units.h"
 
 namespace sope {
 namespace {
 
-constexpr double kPi = 3.14159265358979323846;
 
 Eigen::Matrix3d Rz(double angle) {
   return Eigen::AngleAxisd(angle, Eigen::Vector3d::UnitZ()).toRotationMatrix();

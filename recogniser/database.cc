@@ -660,33 +660,41 @@ void ValidateDecodedContents(const DatabaseImpl& impl, const json& stored_option
   }
 }
 
-}  // namespace
+// ---- Database::Open, step by step --------------------------------------------------------
 
-Database::Database(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
-Database::~Database() = default;
-
-std::unique_ptr<Database> Database::Open(const std::string& path,
-                                         const DatabaseOpenOptions& options) {
-  auto impl = std::make_unique<Impl>();
-  impl->path = path;
-  MappedFile& file = impl->file;
+// The file mapped read-only; refuses what is not a regular file or too short for the magic.
+void MapDatabaseFile(const std::string& path, MappedFile* file) {
   // Non-blocking open: a FIFO named as the database would block open(2) forever.
-  file.fd = OpenRegularFileForReading(path, "database");
+  file->fd = OpenRegularFileForReading(path, "database");
   struct stat st {};
-  SOPE_CHECK(::fstat(file.fd, &st) == 0, "cannot stat database {}: {}", path,
+  SOPE_CHECK(::fstat(file->fd, &st) == 0, "cannot stat database {}: {}", path,
              std::strerror(errno));
   const uint64_t actual_size = static_cast<uint64_t>(st.st_size);
   SOPE_CHECK(actual_size >= sizeof(kMagic), "{} is not a sope database (only {} bytes)", path,
              actual_size);
-  file.data = static_cast<const uint8_t*>(
-      ::mmap(nullptr, actual_size, PROT_READ, MAP_PRIVATE, file.fd, 0));
-  if (file.data == MAP_FAILED) {
-    file.data = nullptr;
+  file->data = static_cast<const uint8_t*>(
+      ::mmap(nullptr, actual_size, PROT_READ, MAP_PRIVATE, file->fd, 0));
+  if (file->data == MAP_FAILED) {
+    file->data = nullptr;
     SOPE_THROW("cannot map database {}: {}", path, std::strerror(errno));
   }
-  file.size = actual_size;
-  const uint8_t* base = file.data;
+  file->size = actual_size;
+}
 
+// The section table of a mapped file, with the bounds of each section checked.
+struct Sections {
+  const uint8_t* base = nullptr;
+  std::vector<SectionEntryOnDisk> entries;
+  const uint8_t* data(int s) const { return base + entries[s].offset; }
+  uint64_t size(int s) const { return entries[s].size; }
+};
+
+// Signature, format version, header checksum, file size and the section table (names,
+// bounds, and the checksums of the sections read now; the mapped ones only when asked).
+Sections ReadHeaderAndSections(const MappedFile& file, const std::string& path,
+                               bool verify_mapped_sections) {
+  const uint8_t* base = file.data;
+  const uint64_t actual_size = file.size;
   SOPE_CHECK(std::memcmp(base, kMagic, sizeof(kMagic)) == 0,
              "{} is not a sope database (no SOPEDB signature)", path);
   SOPE_CHECK(actual_size >= kHeaderBytes,
@@ -718,36 +726,40 @@ std::unique_ptr<Database> Database::Open(const std::string& path,
              "database {} is corrupted: {} bytes, its header says {}", path, actual_size,
              header.file_size);
 
-  std::vector<SectionEntryOnDisk> entries(kNumSections);
-  std::memcpy(entries.data(), base + kHeaderBytes, kSectionEntryBytes * kNumSections);
+  Sections sections;
+  sections.base = base;
+  sections.entries.resize(kNumSections);
+  std::memcpy(sections.entries.data(), base + kHeaderBytes, kSectionEntryBytes * kNumSections);
   for (int s = 0; s < kNumSections; ++s) {
-    const SectionEntryOnDisk& entry = entries[s];
+    const SectionEntryOnDisk& entry = sections.entries[s];
     SOPE_CHECK(std::strncmp(entry.name, kSectionNames[s], kSectionNameBytes) == 0,
                "database {} is corrupted: section {} is not '{}'", path, s, kSectionNames[s]);
     SOPE_CHECK(entry.offset % kSectionAlignment == 0 && entry.offset <= header.file_size &&
                    entry.size <= header.file_size - entry.offset,
                "database {} is corrupted: section '{}' lies outside the file", path,
                kSectionNames[s]);
-    if (s < kFirstMappedSection || options.verify_mapped_sections) {
+    if (s < kFirstMappedSection || verify_mapped_sections) {
       SOPE_CHECK(Crc32c(base + entry.offset, entry.size) == entry.crc,
                  "database {} is corrupted: checksum mismatch in section '{}'", path,
                  kSectionNames[s]);
     }
   }
-  auto section = [&](int s) { return base + entries[s].offset; };
-  auto section_size = [&](int s) { return entries[s].size; };
+  return sections;
+}
 
-  // metadata
+// The metadata section (JSON): options, classes, models, dimensions and distance scales.
+// Returns the number of views; `stored_options` receives the options as stored.
+template <typename DatabaseImpl>  // Database::Impl (private, named by Database::Open)
+int ReadMetadata(const Sections& sections, const std::string& path, DatabaseImpl* impl,
+                 json* stored_options) {
   int num_views = 0;
-  json stored_options;
   try {
-    const json meta = json::parse(reinterpret_cast<const char*>(section(kMetadata)),
-                                  reinterpret_cast<const char*>(section(kMetadata)) +
-                                      section_size(kMetadata));
+    const char* text = reinterpret_cast<const char*>(sections.data(kMetadata));
+    const json meta = json::parse(text, text + sections.size(kMetadata));
     SOPE_CHECK(meta.value("format", "") == "sope-db",
                "database {} is corrupted: metadata format is not sope-db", path);
-    stored_options = meta.at("options");
-    impl->options = OptionsFromJsonObject(stored_options);
+    *stored_options = meta.at("options");
+    impl->options = OptionsFromJsonObject(*stored_options);
     impl->classes = meta.at("classes").get<std::vector<std::string>>();
     for (const json& m : meta.at("models")) {
       ModelRecord model;
@@ -774,27 +786,29 @@ std::unique_ptr<Database> Database::Open(const std::string& path,
   } catch (const json::exception& e) {
     SOPE_THROW("database {} is corrupted: invalid metadata ({})", path, e.what());
   }
-  const int coarse_dim = impl->coarse_dim, fine_dim = impl->fine_dim;
-  const int stride = impl->options.view_cloud_points;
-  SOPE_CHECK(num_views > 0 && !impl->models.empty() && coarse_dim > 0 && fine_dim > 0,
+  SOPE_CHECK(num_views > 0 && !impl->models.empty() && impl->coarse_dim > 0 &&
+                 impl->fine_dim > 0,
              "database {} is corrupted: empty ({} models, {} views)", path, impl->models.size(),
              num_views);
-  auto expect_size = [&](int s, uint64_t expected) {
-    SOPE_CHECK(section_size(s) == expected,
-               "database {} is corrupted: section '{}' has {} bytes, expected {}", path,
-               kSectionNames[s], section_size(s), expected);
-  };
-  expect_size(kViews, sizeof(ViewRecordOnDisk) * static_cast<uint64_t>(num_views));
-  expect_size(kStandard, sizeof(float) * (2 * static_cast<uint64_t>(coarse_dim) + fine_dim + 1));
-  expect_size(kCoarse, sizeof(float) * static_cast<uint64_t>(coarse_dim) * num_views);
-  expect_size(kFine, sizeof(float) * static_cast<uint64_t>(fine_dim) * num_views);
-  expect_size(kClouds, sizeof(CloudPointOnDisk) * static_cast<uint64_t>(stride) * num_views);
+  return num_views;
+}
 
-  // views
+void ExpectSectionSize(const Sections& sections, int s, uint64_t expected,
+                       const std::string& path) {
+  SOPE_CHECK(sections.size(s) == expected,
+             "database {} is corrupted: section '{}' has {} bytes, expected {}", path,
+             kSectionNames[s], sections.size(s), expected);
+}
+
+// The view records, and each model's view range and class index within bounds.
+template <typename DatabaseImpl>
+void ReadViews(const Sections& sections, int num_views, const std::string& path,
+               DatabaseImpl* impl) {
+  const int stride = impl->options.view_cloud_points;
   impl->views.resize(num_views);
   for (int v = 0; v < num_views; ++v) {
     ViewRecordOnDisk record;
-    std::memcpy(&record, section(kViews) + sizeof(record) * v, sizeof(record));
+    std::memcpy(&record, sections.data(kViews) + sizeof(record) * v, sizeof(record));
     ViewRecord& view = impl->views[v];
     view.model = record.model;
     view.cloud_points = record.cloud_points;
@@ -821,17 +835,22 @@ std::unique_ptr<Database> Database::Open(const std::string& path,
                    model.cloud_quantum > 0.0,
                "database {} is corrupted: model {} is invalid", path, model.name);
   }
+}
 
-  // hasher, standardisation, codes
+// The hasher, the standardisation and the binary codes (with their Hamming index).
+template <typename DatabaseImpl>
+void ReadHasherAndCodes(const Sections& sections, int num_views, const std::string& path,
+                        DatabaseImpl* impl) {
+  const int coarse_dim = impl->coarse_dim, fine_dim = impl->fine_dim;
   try {
-    impl->hasher = Hasher::Deserialize(section(kHasher), section_size(kHasher));
+    impl->hasher = Hasher::Deserialize(sections.data(kHasher), sections.size(kHasher));
   } catch (const Error& e) {
     SOPE_THROW("database {} is corrupted: {}", path, e.what());
   }
   impl->coarse_mean.resize(coarse_dim);
   impl->coarse_scale.resize(coarse_dim);
   impl->fine_mean.resize(fine_dim);
-  const uint8_t* standard = section(kStandard);
+  const uint8_t* standard = sections.data(kStandard);
   std::memcpy(impl->coarse_mean.data(), standard, sizeof(float) * coarse_dim);
   std::memcpy(impl->coarse_scale.data(), standard + sizeof(float) * coarse_dim,
               sizeof(float) * coarse_dim);
@@ -844,20 +863,48 @@ std::unique_ptr<Database> Database::Open(const std::string& path,
              "database {} is corrupted: hasher for {} dimensions, hashed vectors have {}", path,
              impl->hasher.input_dims(), hash_dims);
   const int bits = impl->hasher.bits();
-  expect_size(kCodes, sizeof(uint64_t) * BinaryCodes::WordsPerCode(bits) *
-                          static_cast<uint64_t>(num_views));
+  ExpectSectionSize(sections, kCodes,
+                    sizeof(uint64_t) * BinaryCodes::WordsPerCode(bits) *
+                        static_cast<uint64_t>(num_views),
+                    path);
   impl->codes = BinaryCodes(bits, num_views);
-  std::memcpy(impl->codes.words.data(), section(kCodes), section_size(kCodes));
+  std::memcpy(impl->codes.words.data(), sections.data(kCodes), sections.size(kCodes));
   try {
     impl->codes.Check();
   } catch (const Error& e) {
     SOPE_THROW("database {} is corrupted: {}", path, e.what());
   }
   impl->index = std::make_unique<HammingIndex>(impl->codes);
+}
 
-  impl->coarse = reinterpret_cast<const float*>(section(kCoarse));
-  impl->fine = reinterpret_cast<const float*>(section(kFine));
-  impl->clouds = reinterpret_cast<const CloudPointOnDisk*>(section(kClouds));
+}  // namespace
+
+Database::Database(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Database::~Database() = default;
+
+std::unique_ptr<Database> Database::Open(const std::string& path,
+                                         const DatabaseOpenOptions& options) {
+  auto impl = std::make_unique<Impl>();
+  impl->path = path;
+  MapDatabaseFile(path, &impl->file);
+  const Sections sections =
+      ReadHeaderAndSections(impl->file, path, options.verify_mapped_sections);
+  json stored_options;
+  const int num_views = ReadMetadata(sections, path, impl.get(), &stored_options);
+  const uint64_t views = static_cast<uint64_t>(num_views);
+  const uint64_t coarse_dim = impl->coarse_dim, fine_dim = impl->fine_dim;
+  const int stride = impl->options.view_cloud_points;
+  ExpectSectionSize(sections, kViews, sizeof(ViewRecordOnDisk) * views, path);
+  ExpectSectionSize(sections, kStandard, sizeof(float) * (2 * coarse_dim + fine_dim + 1), path);
+  ExpectSectionSize(sections, kCoarse, sizeof(float) * coarse_dim * views, path);
+  ExpectSectionSize(sections, kFine, sizeof(float) * fine_dim * views, path);
+  ExpectSectionSize(sections, kClouds, sizeof(CloudPointOnDisk) * static_cast<uint64_t>(stride) *
+                                           views, path);
+  ReadViews(sections, num_views, path, impl.get());
+  ReadHasherAndCodes(sections, num_views, path, impl.get());
+  impl->coarse = reinterpret_cast<const float*>(sections.data(kCoarse));
+  impl->fine = reinterpret_cast<const float*>(sections.data(kFine));
+  impl->clouds = reinterpret_cast<const CloudPointOnDisk*>(sections.data(kClouds));
   impl->cloud_stride = stride;
   ValidateDecodedContents(*impl, stored_options, options.verify_mapped_sections, path);
   return std::unique_ptr<Database>(new Database(std::move(impl)));

@@ -1,11 +1,6 @@
-// GCC 12 reports Eigen's AVX-512 kernels (self-initialised "undefined" registers in the
-// intrinsics headers) as maybe-uninitialised under -march=native; a known false positive.
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#endif
-
 // Binary reconstructive embedding (Kulis & Darrell 2009; thesis eq. 2.21).
+#include "recogniser/hash_function.h"
+
 #include <algorithm>
 #include <cmath>
 #include <memory>
@@ -15,7 +10,6 @@
 #include <Eigen/Dense>
 
 #include "core/error.h"
-#include "recogniser/hash_function.h"
 
 namespace sope {
 namespace internal {

@@ -3,7 +3,17 @@
 // trained from a TrainingContext and stored as HashParameters — the serialised layout of
 // format version 1, which holds every method's fields (unused ones empty) so databases
 // written before this split read unchanged. Internal to the recogniser library.
+//
+// Include it first in a hasher's file: the diagnostic pragmas below must precede every
+// Eigen header of the translation unit to cover Eigen's kernels.
 #pragma once
+
+// GCC 12 reports Eigen's AVX-512 kernels (self-initialised "undefined" registers in the
+// intrinsics headers) as maybe-uninitialised under -march=native; a known false positive.
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#pragma GCC diagnostic ignored "-Wuninitialized"
+#endif
 
 #include <cmath>
 #include <cstdint>
@@ -154,6 +164,15 @@ class LinearHashFunction : public HashFunction {
   Eigen::MatrixXf projection_;
   Eigen::VectorXf offset_;
 };
+
+// A linear hasher of type H (a LinearHashFunction) rebuilt from stored parameters.
+template <class H>
+std::unique_ptr<HashFunction> LoadLinear(const HashParameters& p, HashMethod method, int bits,
+                                         Eigen::Index dims) {
+  auto hasher = std::make_unique<H>();
+  hasher->Load(p, method, bits, dims);
+  return hasher;
+}
 
 // Per method: train (options.method's options, the context's rng), or rebuild from stored
 // parameters (throws sope::Error on inconsistent sizes).

@@ -1,12 +1,7 @@
-// GCC 12 reports Eigen's AVX-512 kernels (self-initialised "undefined" registers in the
-// intrinsics headers) as maybe-uninitialised under -march=native; a known false positive.
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#endif
-
 // Iterative quantisation (Gong & Lazebnik 2011): PCA, then the rotation minimising the
 // quantisation loss.
+#include "recogniser/hash_function.h"
+
 #include <algorithm>
 #include <cmath>
 #include <memory>
@@ -15,7 +10,6 @@
 #include <Eigen/Dense>
 
 #include "core/error.h"
-#include "recogniser/hash_function.h"
 
 namespace sope {
 namespace internal {
@@ -62,9 +56,7 @@ std::unique_ptr<HashFunction> TrainItq(TrainingContext& context) {
 }
 
 std::unique_ptr<HashFunction> LoadItq(const HashParameters& p, int bits, Eigen::Index dims) {
-  auto hasher = std::make_unique<ItqHasher>();
-  hasher->Load(p, HashMethod::kItq, bits, dims);
-  return hasher;
+  return LoadLinear<ItqHasher>(p, HashMethod::kItq, bits, dims);
 }
 
 }  // namespace internal

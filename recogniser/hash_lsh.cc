@@ -1,12 +1,7 @@
-// GCC 12 reports Eigen's AVX-512 kernels (self-initialised "undefined" registers in the
-// intrinsics headers) as maybe-uninitialised under -march=native; a known false positive.
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#endif
-
 // LSH: Gaussian random projections of mean-centred features, thresholded at zero
 // (Charikar 2002) or at random thresholds (Andoni & Indyk 2008).
+#include "recogniser/hash_function.h"
+
 #include <algorithm>
 #include <cmath>
 #include <memory>
@@ -15,7 +10,6 @@
 #include <Eigen/Dense>
 
 #include "core/error.h"
-#include "recogniser/hash_function.h"
 
 namespace sope {
 namespace internal {
@@ -44,9 +38,7 @@ std::unique_ptr<HashFunction> TrainLsh(TrainingContext& context) {
 }
 
 std::unique_ptr<HashFunction> LoadLsh(const HashParameters& p, int bits, Eigen::Index dims) {
-  auto hasher = std::make_unique<LshHasher>();
-  hasher->Load(p, HashMethod::kLsh, bits, dims);
-  return hasher;
+  return LoadLinear<LshHasher>(p, HashMethod::kLsh, bits, dims);
 }
 
 }  // namespace internal

@@ -1,11 +1,6 @@
-// GCC 12 reports Eigen's AVX-512 kernels (self-initialised "undefined" registers in the
-// intrinsics headers) as maybe-uninitialised under -march=native; a known false positive.
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#endif
-
 // Minimal-loss hashing (Norouzi & Fleet 2011; thesis eq. 2.18–2.20).
+#include "recogniser/hash_function.h"
+
 #include <algorithm>
 #include <cmath>
 #include <memory>
@@ -14,7 +9,6 @@
 #include <Eigen/Dense>
 
 #include "core/error.h"
-#include "recogniser/hash_function.h"
 
 namespace sope {
 namespace internal {
@@ -153,9 +147,7 @@ std::unique_ptr<HashFunction> TrainMinimalLoss(TrainingContext& context) {
 
 std::unique_ptr<HashFunction> LoadMinimalLoss(const HashParameters& p, int bits,
                                               Eigen::Index dims) {
-  auto hasher = std::make_unique<MinimalLossHasher>();
-  hasher->Load(p, HashMethod::kMinimalLoss, bits, dims);
-  return hasher;
+  return LoadLinear<MinimalLossHasher>(p, HashMethod::kMinimalLoss, bits, dims);
 }
 
 }  // namespace internal

@@ -1,11 +1,6 @@
-// GCC 12 reports Eigen's AVX-512 kernels (self-initialised "undefined" registers in the
-// intrinsics headers) as maybe-uninitialised under -march=native; a known false positive.
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
-#pragma GCC diagnostic ignored "-Wuninitialized"
-#endif
-
 // Spectral hashing (Weiss, Torralba & Fergus 2008; thesis eq. 4.12–4.13).
+#include "recogniser/hash_function.h"
+
 #include <algorithm>
 #include <cmath>
 #include <memory>
@@ -14,7 +9,6 @@
 #include <Eigen/Dense>
 
 #include "core/error.h"
-#include "recogniser/hash_function.h"
 
 namespace sope {
 namespace internal {

@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "core/units.h"
 #include "recogniser/hamming_search.h"
 #include "tests/test_support.h"
 
@@ -359,8 +360,8 @@ TEST(HashingTest, SpectralHashingMatchesAnalyticEigenfunctions) {
     int agree_forward = 0, agree_mirrored = 0;
     for (int i = 0; i < features.rows(); ++i) {
       const float u = features(i, axis[b]) / length[axis[b]];  // in [0, 1]
-      const bool forward = std::cos(mode[b] * M_PI * u) > 0.0;
-      const bool mirrored = std::cos(mode[b] * M_PI * (1.0 - u)) > 0.0;
+      const bool forward = std::cos(mode[b] * kPi * u) > 0.0;
+      const bool mirrored = std::cos(mode[b] * kPi * (1.0 - u)) > 0.0;
       agree_forward += codes.GetBit(i, b) == forward;
       agree_mirrored += codes.GetBit(i, b) == mirrored;
     }

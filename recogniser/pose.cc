@@ -30,7 +30,7 @@ inline float FastAtan2(float y, float x) {
   const float s = a * a;
   float r = ((-0.0464964749f * s + 0.15931422f) * s - 0.327622764f) * s * a + a;
   if (ay > ax) r = 1.57079637f - r;
-  if (x < 0.0f) r = 3.14159274f - r;
+  if (x < 0.0f) r = static_cast<float>(kPi) - r;
   return y < 0.0f ? -r : r;
 }
 

@@ -11,11 +11,11 @@
 #include <pcl/point_types.h>
 
 #include "core/error.h"
+#include "core/units.h"
 
 namespace sope {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 
 pcl::PointCloud<pcl::PointXYZ>::Ptr ToPcl(const std::vector<Eigen::Vector3f>& points) {
   auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZ>>();

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include "core/error.h"
+#include "core/units.h"
 #include "simulator/primitives.h"
 #include "simulator/procedural_objects.h"
 
@@ -11,7 +12,7 @@ namespace sope {
 namespace {
 
 Eigen::Matrix3d Turn(const Eigen::Vector3d& axis, double degrees) {
-  return Eigen::AngleAxisd(degrees * M_PI / 180.0, axis.normalized()).toRotationMatrix();
+  return Eigen::AngleAxisd(DegToRad(degrees), axis.normalized()).toRotationMatrix();
 }
 
 TEST(PoseMetrics, RotationErrorAndAdd) {

@@ -67,78 +67,96 @@ std::string PreprocessSummary::BriefReport() const {
       input_points, finite_points, in_range_points, voxel_points, inlier_points, final_points);
 }
 
-PreprocessedCloud Preprocess(const PointCloud& cloud, const PreprocessOptions& options) {
-  options.Check();
-  cloud.Check();
-  SOPE_CHECK(!cloud.empty(), "Preprocess: the input cloud is empty");
-  PreprocessedCloud out;
-  PreprocessSummary& summary = out.summary;
-  summary.input_points = static_cast<int64_t>(cloud.size());
+namespace {
 
-  // Range band on ‖p‖ (thesis's conditional filter) together with the finiteness test; the
-  // input normals and colours are not used (normals are re-estimated after thinning so that
-  // database and query clouds get the same estimator).
-  const double min_sq = options.min_range * options.min_range;
-  const double max_sq = options.max_range * options.max_range;
+// The range band on ‖p‖ (thesis's conditional filter), compared on squared norms.
+struct RangeBand {
+  double min_sq, max_sq;
+  explicit RangeBand(const PreprocessOptions& options)
+      : min_sq(options.min_range * options.min_range),
+        max_sq(options.max_range * options.max_range) {}
+  bool Contains(const Eigen::Vector3f& p) const {
+    const double sq = p.cast<double>().squaredNorm();
+    return sq >= min_sq && sq <= max_sq;
+  }
+};
+
+// Step 1: the finite points inside the range band. The input normals and colours are not
+// used (normals are re-estimated after thinning so that database and query clouds get the
+// same estimator).
+std::vector<Eigen::Vector3f> FiniteInRange(const PointCloud& cloud,
+                                           const PreprocessOptions& options,
+                                           PreprocessSummary* summary) {
+  const RangeBand band(options);
   std::vector<Eigen::Vector3f> points;
   points.reserve(cloud.size());
   for (const Eigen::Vector3f& p : cloud.points) {
     if (!IsFinite(p)) continue;
-    ++summary.finite_points;
-    const double sq = p.cast<double>().squaredNorm();
-    if (sq < min_sq || sq > max_sq) continue;
-    points.push_back(p);
+    ++summary->finite_points;
+    if (band.Contains(p)) points.push_back(p);
   }
-  summary.in_range_points = static_cast<int64_t>(points.size());
-  SOPE_CHECK(summary.finite_points > 0, "Preprocess: none of the {} input points is finite",
-             summary.input_points);
+  summary->in_range_points = static_cast<int64_t>(points.size());
+  SOPE_CHECK(summary->finite_points > 0, "Preprocess: none of the {} input points is finite",
+             summary->input_points);
   SOPE_CHECK(!points.empty(),
              "Preprocess: no point left: all {} finite points lie outside the range band "
              "[{}, {}] m",
-             summary.finite_points, options.min_range, options.max_range);
+             summary->finite_points, options.min_range, options.max_range);
+  return points;
+}
 
-  // Voxel grid first (it thins 100k raw points to a few thousand, and the neighbour
-  // statistics below are then on an even sampling).
-  std::vector<uint32_t> voxel_counts;
+// Step 2: the voxel grid (it thins 100k raw points to a few thousand, and the neighbour
+// statistics are then on an even sampling), coarsened until at most kMaxVoxelPoints remain.
+// `voxel_counts` receives the raw points behind each voxel (empty without a grid).
+std::vector<Eigen::Vector3f> ThinToVoxels(const PointCloud& cloud,
+                                          std::vector<Eigen::Vector3f> points,
+                                          const PreprocessOptions& options,
+                                          std::vector<uint32_t>* voxel_counts) {
+  const size_t in_range_points = points.size();
   if (options.voxel_leaf > 0.0) {
     points =
-        internal::VoxelGridCentroids(points, static_cast<float>(options.voxel_leaf), &voxel_counts);
+        internal::VoxelGridCentroids(points, static_cast<float>(options.voxel_leaf), voxel_counts);
   }
-  if (points.size() > kMaxVoxelPoints) {
-    // Coarsen from the in-range points (so the counts stay per raw point): the number of
-    // voxels falls at least as the square of the leaf on a surface, faster in a volume.
-    const size_t first_voxels = points.size();
-    std::vector<Eigen::Vector3f> in_range;
-    if (options.voxel_leaf > 0.0) {
-      in_range.reserve(static_cast<size_t>(summary.in_range_points));
-      for (const Eigen::Vector3f& p : cloud.points) {
-        if (!IsFinite(p)) continue;
-        const double sq = p.cast<double>().squaredNorm();
-        if (sq >= min_sq && sq <= max_sq) in_range.push_back(p);
-      }
-    } else {
-      in_range.swap(points);
+  if (points.size() <= kMaxVoxelPoints) return points;
+  // Coarsen from the in-range points (so the counts stay per raw point): the number of
+  // voxels falls at least as the square of the leaf on a surface, faster in a volume.
+  const size_t first_voxels = points.size();
+  std::vector<Eigen::Vector3f> in_range;
+  if (options.voxel_leaf > 0.0) {
+    const RangeBand band(options);
+    in_range.reserve(in_range_points);
+    for (const Eigen::Vector3f& p : cloud.points) {
+      if (IsFinite(p) && band.Contains(p)) in_range.push_back(p);
     }
-    double leaf = options.voxel_leaf > 0.0 ? options.voxel_leaf : options.max_range / 1000.0;
-    size_t voxels = options.voxel_leaf > 0.0 ? points.size() : in_range.size();
-    while (voxels > kMaxVoxelPoints) {
-      leaf *= std::max(1.25, 1.05 * std::sqrt(static_cast<double>(voxels) / kMaxVoxelPoints));
-      points = internal::VoxelGridCentroids(in_range, static_cast<float>(leaf), &voxel_counts);
-      voxels = points.size();
-    }
-    spdlog::debug("Preprocess: {} points at the {} m leaf exceed {}; a {:.4f} m leaf gives {}",
-                  first_voxels, options.voxel_leaf, kMaxVoxelPoints, leaf, voxels);
+  } else {
+    in_range.swap(points);
   }
-  summary.voxel_points = static_cast<int64_t>(points.size());
+  double leaf = options.voxel_leaf > 0.0 ? options.voxel_leaf : options.max_range / 1000.0;
+  size_t voxels = options.voxel_leaf > 0.0 ? points.size() : in_range.size();
+  while (voxels > kMaxVoxelPoints) {
+    leaf *= std::max(1.25, 1.05 * std::sqrt(static_cast<double>(voxels) / kMaxVoxelPoints));
+    points = internal::VoxelGridCentroids(in_range, static_cast<float>(leaf), voxel_counts);
+    voxels = points.size();
+  }
+  spdlog::debug("Preprocess: {} points at the {} m leaf exceed {}; a {:.4f} m leaf gives {}",
+                first_voxels, options.voxel_leaf, kMaxVoxelPoints, leaf, voxels);
+  return points;
+}
 
-  // Statistical outlier removal; its neighbour table is reused for the normals.
+// Step 3: statistical outlier removal (weighted by the raw points behind each voxel, as if
+// on the raw cloud), then normals from the k nearest inliers (the point itself included, as
+// PCL's NormalEstimation::setKSearch), oriented towards the sensor at the origin. One
+// neighbour table serves both: the k nearest inliers are the first k inliers of the full
+// neighbour list when it holds that many. Fills out->cloud and out->curvature.
+void RemoveOutliersAndFitNormals(const std::vector<Eigen::Vector3f>& points,
+                                 const std::vector<uint32_t>& voxel_counts,
+                                 const PreprocessOptions& options, PreprocessedCloud* out) {
   const int normal_k = options.normal_neighbours;
   const internal::NeighbourGrid grid(points, std::max(options.outlier_neighbours + 1, normal_k));
   const internal::NeighbourTable table =
       grid.AllKNearest(std::max(options.outlier_neighbours + 1, normal_k));
   std::vector<uint8_t> keep(points.size(), 1);
   if (options.outlier_neighbours > 0) {
-    // Statistics weighted by the raw points behind each voxel (as if on the raw cloud).
     keep = internal::StatisticalInlierMask(
         table, options.outlier_neighbours, options.outlier_stddev,
         voxel_counts.empty() ? nullptr : &voxel_counts, options.outlier_min_ratio);
@@ -151,11 +169,8 @@ PreprocessedCloud Preprocess(const PointCloud& cloud, const PreprocessOptions& o
     new_index[i] = static_cast<int32_t>(inliers.size());
     inliers.push_back(points[i]);
   }
-  summary.inlier_points = static_cast<int64_t>(inliers.size());
+  out->summary.inlier_points = static_cast<int64_t>(inliers.size());
 
-  // Normals from the k nearest inliers (the point itself included, as PCL's
-  // NormalEstimation::setKSearch), oriented towards the sensor at the origin. The k nearest
-  // inliers are the first k inliers of the full neighbour list when it holds that many.
   const int k = std::min<int>(normal_k, static_cast<int>(inliers.size()));
   std::vector<int32_t> neighbours;
   std::vector<float> unused_distances;
@@ -164,10 +179,10 @@ PreprocessedCloud Preprocess(const PointCloud& cloud, const PreprocessOptions& o
     if (!inlier_grid) inlier_grid = std::make_unique<internal::NeighbourGrid>(inliers, normal_k);
     inlier_grid->KNearest(inliers[i], k, &neighbours, &unused_distances);
   };
-  PointCloud& result = out.cloud;
+  PointCloud& result = out->cloud;
   result.points.reserve(inliers.size());
   result.normals.reserve(inliers.size());
-  out.curvature.reserve(inliers.size());
+  out->curvature.reserve(inliers.size());
   const Eigen::Vector3f sensor = Eigen::Vector3f::Zero();
   for (size_t i = 0; i < points.size(); ++i) {
     if (!keep[i]) continue;
@@ -186,17 +201,15 @@ PreprocessedCloud Preprocess(const PointCloud& cloud, const PreprocessOptions& o
     }
     result.points.push_back(inliers[inlier]);
     result.normals.push_back(normal);
-    out.curvature.push_back(curvature);
+    out->curvature.push_back(curvature);
   }
-  summary.final_points = static_cast<int64_t>(result.size());
-  SOPE_CHECK(summary.final_points >= options.min_points,
-             "Preprocess: only {} points left, fewer than min_points = {} ({}; range band "
-             "[{}, {}] m, voxel leaf {} m, outlier removal k = {} σ×{})",
-             summary.final_points, options.min_points, summary.BriefReport(), options.min_range,
-             options.max_range, options.voxel_leaf, options.outlier_neighbours,
-             options.outlier_stddev);
+}
 
-  // Centroid and size normalisation (thesis §4.2.4.2).
+// Step 4: centroid and size normalisation (thesis §4.2.4.2): the radius is the farthest
+// distance from the centroid, or the median of the distances ranked beyond the
+// median_fraction quantile. Fills out->centroid, out->radius and out->normalised.
+void NormaliseCentroidAndSize(const PreprocessOptions& options, PreprocessedCloud* out) {
+  const PointCloud& result = out->cloud;
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   for (const Eigen::Vector3f& p : result.points) centroid += p.cast<double>();
   centroid /= static_cast<double>(result.size());
@@ -208,7 +221,6 @@ PreprocessedCloud Preprocess(const PointCloud& cloud, const PreprocessOptions& o
   if (options.normalisation == ScaleNormalisation::kFarthest) {
     radius = *std::max_element(distances.begin(), distances.end());
   } else {
-    // Median of the distances ranked beyond the median_fraction quantile.
     const size_t n = distances.size();
     const size_t first =
         std::min(n - 1, static_cast<size_t>(std::floor(options.median_fraction * n)));
@@ -225,14 +237,38 @@ PreprocessedCloud Preprocess(const PointCloud& cloud, const PreprocessOptions& o
   SOPE_CHECK(radius > 0.0 && std::isfinite(radius),
              "Preprocess: the {} remaining points coincide (normalisation radius {} m)",
              result.size(), radius);
-  out.centroid = centroid.cast<float>();
-  out.radius = static_cast<float>(radius);
-  out.normalised.points.reserve(result.size());
+  out->centroid = centroid.cast<float>();
+  out->radius = static_cast<float>(radius);
+  out->normalised.points.reserve(result.size());
   const double inv_radius = 1.0 / radius;
   for (const Eigen::Vector3f& p : result.points) {
-    out.normalised.points.push_back(((p.cast<double>() - centroid) * inv_radius).cast<float>());
+    out->normalised.points.push_back(((p.cast<double>() - centroid) * inv_radius).cast<float>());
   }
-  out.normalised.normals = result.normals;
+  out->normalised.normals = result.normals;
+}
+
+}  // namespace
+
+PreprocessedCloud Preprocess(const PointCloud& cloud, const PreprocessOptions& options) {
+  options.Check();
+  cloud.Check();
+  SOPE_CHECK(!cloud.empty(), "Preprocess: the input cloud is empty");
+  PreprocessedCloud out;
+  PreprocessSummary& summary = out.summary;
+  summary.input_points = static_cast<int64_t>(cloud.size());
+  std::vector<uint32_t> voxel_counts;
+  const std::vector<Eigen::Vector3f> points =
+      ThinToVoxels(cloud, FiniteInRange(cloud, options, &summary), options, &voxel_counts);
+  summary.voxel_points = static_cast<int64_t>(points.size());
+  RemoveOutliersAndFitNormals(points, voxel_counts, options, &out);
+  summary.final_points = static_cast<int64_t>(out.cloud.size());
+  SOPE_CHECK(summary.final_points >= options.min_points,
+             "Preprocess: only {} points left, fewer than min_points = {} ({}; range band "
+             "[{}, {}] m, voxel leaf {} m, outlier removal k = {} σ×{})",
+             summary.final_points, options.min_points, summary.BriefReport(), options.min_range,
+             options.max_range, options.voxel_leaf, options.outlier_neighbours,
+             options.outlier_stddev);
+  NormaliseCentroidAndSize(options, &out);
   return out;
 }
 

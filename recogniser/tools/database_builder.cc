@@ -20,6 +20,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/statistics.h"
+#include "core/units.h"
 #include "recogniser/view_description.h"
 #include "simulator/virtual_rig.h"
 
@@ -464,8 +465,8 @@ std::vector<int> AssembleViews(const DescribedViews& described, DatabaseData* da
       const ViewResult& result = described.results[s];
       if (!result.ok) {
         spdlog::debug("model {}: view (θ {:.1f}°, φ {:.1f}°) dropped: {}", record.name,
-                      result.record.viewpoint.theta * 180.0 / M_PI,
-                      result.record.viewpoint.phi * 180.0 / M_PI, result.error);
+                      RadToDeg(result.record.viewpoint.theta),
+                      RadToDeg(result.record.viewpoint.phi), result.error);
         ++report->dropped_views;
         continue;
       }

@@ -17,6 +17,8 @@
 #include "core/json.h"
 #include "core/plots.h"
 #include "core/statistics.h"
+#include "core/units.h"
+#include "recogniser/bop.h"
 #include "recogniser/tools/database_builder.h"
 #include "recogniser/tools/scan_recognition.h"
 #include "recogniser/viewpoints.h"
@@ -27,7 +29,6 @@
 namespace sope {
 namespace {
 
-constexpr double kRadToDeg = 180.0 / M_PI;
 constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 constexpr int kAddsSamples = 2000;
 // A query cloud needs this many points to be worth asking (fewer: the object was mostly
@@ -102,11 +103,49 @@ double HorizontalFov(const CameraModel& camera) {
   return 2.0 * std::atan(0.5 * camera.width / camera.matrix(0, 0));
 }
 
+// BOP's MSSD (over the diameter) and MSPD (pixels) of `estimate` against `truth` on the
+// model's ADD-S surface samples (at most 2000, evenly taken), modulo the model's
+// symmetries about the samples' centroid; a continuous symmetry is discretised as
+// bop_toolkit does (misc.get_symmetry_transformations, max_sym_disc_step 0.01: 315 turns).
+void BopErrors(const Rigid3d& estimate, const Rigid3d& truth, const PoseTruthModel& model,
+               const Eigen::Matrix3d& camera_matrix, double* mssd_over_diameter,
+               double* mspd_px) {
+  constexpr size_t kMaxPoints = 2000;
+  const size_t stride = std::max<size_t>(1, model.samples.size() / kMaxPoints);
+  std::vector<Eigen::Vector3d> points;
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (size_t i = 0; i < model.samples.size(); i += stride) {
+    points.push_back(model.samples[i].cast<double>());
+    centroid += points.back();
+  }
+  SOPE_CHECK(!points.empty() && model.diameter > 0.0, "BOP errors: no model samples");
+  centroid /= static_cast<double>(points.size());
+  std::vector<Eigen::Matrix3d> discrete = {Eigen::Matrix3d::Identity()};
+  for (const Eigen::Matrix3d& r : model.symmetry.rotations) discrete.push_back(r);
+  std::vector<Eigen::Matrix3d> continuous = {Eigen::Matrix3d::Identity()};
+  if (model.symmetry.continuous) {
+    const int steps = static_cast<int>(std::ceil(kPi / 0.01));
+    for (int k = 1; k < steps; ++k) {
+      continuous.push_back(
+          Eigen::AngleAxisd(2.0 * kPi * k / steps, model.symmetry.axis).toRotationMatrix());
+    }
+  }
+  std::vector<Rigid3d> symmetries;
+  for (const Eigen::Matrix3d& c : continuous) {
+    for (const Eigen::Matrix3d& d : discrete) {
+      const Eigen::Matrix3d rotation = c * d;
+      symmetries.emplace_back(rotation, centroid - rotation * centroid);
+    }
+  }
+  *mssd_over_diameter = Mssd(estimate, truth, points, symmetries) / model.diameter;
+  *mspd_px = Mspd(estimate, truth, camera_matrix, points, symmetries);
+}
+
 // Fills the outcome of one recognised query: the suggestions' ranks against the truth,
 // the viewpoint error, and (instance protocol, right model) the pose error.
 void ScoreOutcome(const Database& db, const EvalModel& model, const SyntheticQuery& query,
-                  const EvalOptions& options, const RecognitionResult& result,
-                  QueryOutcome* out) {
+                  const EvalOptions& options, const Eigen::Matrix3d& camera_matrix,
+                  const RecognitionResult& result, QueryOutcome* out) {
   QueryOutcome& outcome = *out;
   const Suggestion& best = result.best();
   outcome.predicted_model = best.model_name;
@@ -152,6 +191,8 @@ void ScoreOutcome(const Database& db, const EvalModel& model, const SyntheticQue
       outcome.adds_m = error.adds_m;
       outcome.adds_over_diameter = error.adds_over_diameter();
       outcome.adds_ok = outcome.adds_over_diameter < options.adds_fraction;
+      BopErrors(best.cam_from_model, query.cam_from_model, model.truth, camera_matrix,
+                &outcome.mssd_over_diameter, &outcome.mspd_px);
     }
   }
 }
@@ -263,6 +304,7 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
     patterns.projector_width = rig_calibration.projector.width;
     patterns.projector_height = rig_calibration.projector.height;
   }
+  report.query_image_width = camera.width;
   SyntheticQueryOptions query_options = options.query;
   if (options.through_scan) query_options.max_occlusion = 0.0;
   DepthRenderer renderer(camera);
@@ -290,7 +332,8 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
       outcome.cloud_points = static_cast<int>(query.cloud.size());
       outcome.truth_cam_from_model = query.cam_from_model;
       outcome.viewpoint_error_deg = outcome.rotation_error_deg = outcome.translation_error_m =
-          outcome.adds_m = outcome.adds_over_diameter = kNaN;
+          outcome.adds_m = outcome.adds_over_diameter = outcome.mssd_over_diameter =
+              outcome.mspd_px = kNaN;
       RecognitionResult result;
       try {
         if (options.through_scan) {
@@ -325,12 +368,35 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
         if (progress) progress(++done, total);
         continue;
       }
-      ScoreOutcome(db, model, query, options, result, &outcome);
+      ScoreOutcome(db, model, query, options, camera.matrix, result, &outcome);
       report.outcomes.push_back(std::move(outcome));
       if (progress) progress(++done, total);
     }
   }
   return report;
+}
+
+namespace {
+
+// BOP average recall of per-query errors (NaN = miss: counted as +∞).
+double BopAverageRecall(const std::vector<QueryOutcome>& outcomes,
+                        double QueryOutcome::*error, const std::vector<double>& thresholds) {
+  std::vector<double> errors;
+  for (const QueryOutcome& o : outcomes) {
+    const double e = o.*error;
+    errors.push_back(std::isnan(e) ? std::numeric_limits<double>::infinity() : e);
+  }
+  return AverageRecall(errors, thresholds);
+}
+
+}  // namespace
+
+double EvalReport::MssdAverageRecall() const {
+  return BopAverageRecall(outcomes, &QueryOutcome::mssd_over_diameter, MssdThresholds(1.0));
+}
+double EvalReport::MspdAverageRecall() const {
+  return BopAverageRecall(outcomes, &QueryOutcome::mspd_px,
+                          MspdThresholds(query_image_width > 0 ? query_image_width : 640));
 }
 
 double EvalReport::ModelTop1() const {
@@ -453,12 +519,14 @@ std::string EvalReport::BriefReport() const {
     text += fmt::format(
         "  model top-1 {}, top-{} {}; class top-1 {}, top-{} {}\n"
         "  pose (first suggestion): median rotation error {}° (modulo symmetry), centre {} mm, "
-        "ADD-S median {}% of the diameter, ADD-S@{:.0f}% {}, rotation < {:.0f}° {}\n",
+        "ADD-S median {}% of the diameter, ADD-S@{:.0f}% {}, rotation < {:.0f}° {}\n"
+        "  BOP average recall: MSSD {}, MSPD {}\n",
         Percent(ModelTop1()), options.recognition.top_k, Percent(ModelTopK()),
         Percent(ClassTop1()), options.recognition.top_k, Percent(ClassTopK()),
         Fixed(MedianRotationErrorDeg(), 2), Fixed(MedianTranslationErrorMm(), 2),
         Fixed(100.0 * MedianAddsOverDiameter(), 2), 100.0 * options.adds_fraction,
-        Percent(AddsSuccess()), options.rotation_threshold_deg, Percent(RotationSuccess()));
+        Percent(AddsSuccess()), options.rotation_threshold_deg, Percent(RotationSuccess()),
+        Percent(MssdAverageRecall()), Percent(MspdAverageRecall()));
   } else {
     text += fmt::format("  class top-1 {}, top-{} {}\n", Percent(ClassTop1()),
                         options.recognition.top_k, Percent(ClassTopK()));
@@ -509,10 +577,13 @@ std::string EvalReport::ToMarkdown() const {
         "| median centre error (correct model) | {} mm |\n"
         "| median ADD-S (correct model) | {}% of the diameter |\n"
         "| ADD-S < {:.0f}% of the diameter (all queries) | {} |\n"
-        "| rotation error < {:.0f}°, modulo symmetry (all queries) | {} |\n",
+        "| rotation error < {:.0f}°, modulo symmetry (all queries) | {} |\n"
+        "| BOP MSSD average recall (0.05–0.5 × diameter, all queries) | {} |\n"
+        "| BOP MSPD average recall (5–50 px × 640/{}, all queries) | {} |\n",
         Fixed(MedianRotationErrorDeg(), 2), Fixed(MedianTranslationErrorMm(), 2),
         Fixed(100.0 * MedianAddsOverDiameter(), 2), 100.0 * options.adds_fraction,
-        Percent(AddsSuccess()), options.rotation_threshold_deg, Percent(RotationSuccess()));
+        Percent(AddsSuccess()), options.rotation_threshold_deg, Percent(RotationSuccess()),
+        Percent(MssdAverageRecall()), query_image_width, Percent(MspdAverageRecall()));
   }
   md += fmt::format("| database flagged by the coarse search | {} mean, {} max |\n",
                     Percent(MeanFlaggedFraction()), Percent(MaxFlaggedFraction()));
@@ -579,6 +650,9 @@ std::string EvalReport::ToJson() const {
   j["adds_success"] = AddsSuccess();
   j["rotation_threshold_deg"] = options.rotation_threshold_deg;
   j["rotation_success"] = RotationSuccess();
+  j["bop_mssd_average_recall"] = MssdAverageRecall();
+  j["bop_mspd_average_recall"] = MspdAverageRecall();
+  j["query_image_width"] = query_image_width;
   j["flagged_fraction_mean"] = JsonNumber(MeanFlaggedFraction());
   j["flagged_fraction_max"] = MaxFlaggedFraction();
   j["timing_ms_median_cpu"] = {{"preprocess", t.preprocess_cpu}, {"features", t.features_cpu},
@@ -611,6 +685,8 @@ std::string EvalReport::ToJson() const {
     q["rotation_error_deg"] = JsonNumber(o.rotation_error_deg);
     q["translation_error_m"] = JsonNumber(o.translation_error_m);
     q["adds_over_diameter"] = JsonNumber(o.adds_over_diameter);
+    q["mssd_over_diameter"] = JsonNumber(o.mssd_over_diameter);
+    q["mspd_px"] = JsonNumber(o.mspd_px);
     q["flagged_fraction"] = o.flagged_fraction;
     q["total_ms_cpu"] = o.timing.total_cpu;
     list.push_back(std::move(q));

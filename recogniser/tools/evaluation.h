@@ -104,6 +104,11 @@ struct QueryOutcome {
   double adds_m;
   double adds_over_diameter;
   bool adds_ok = false;
+  // BOP 2019 pose errors of the first suggestion (recogniser/bop.h), NaN when the model is
+  // wrong or the query refused (then a miss at every threshold): MSSD over the true
+  // model's diameter, MSPD in pixels of the query camera.
+  double mssd_over_diameter;
+  double mspd_px;
   double flagged_fraction = 0.0;
   RecognitionTimings timing;
   // The best suggestion's database model (−1: none) and pose, and the query's true pose
@@ -122,6 +127,7 @@ struct EvalReport {
   std::vector<std::string> labels;  // confusion-matrix labels: models (instance) or classes
   std::vector<QueryOutcome> outcomes;
   std::vector<std::string> skipped_models;
+  int query_image_width = 0;  // the query camera's width (MSPD thresholds)
 
   // Aggregates (fractions of all queries unless said otherwise).
   int queries() const { return static_cast<int>(outcomes.size()); }
@@ -137,6 +143,10 @@ struct EvalReport {
   double MedianRotationErrorDeg() const;
   double MedianTranslationErrorMm() const;
   double MedianAddsOverDiameter() const;
+  // BOP's average recalls (instance protocol; wrong model or refused = miss): MSSD over the
+  // thresholds 0.05…0.5 × diameter, MSPD over 5…50 px × 640 / query_image_width.
+  double MssdAverageRecall() const;
+  double MspdAverageRecall() const;
   double MeanFlaggedFraction() const;
   double MaxFlaggedFraction() const;
   // Per stage, CPU milliseconds: median and 95th percentile over the queries.

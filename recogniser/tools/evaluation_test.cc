@@ -3,6 +3,7 @@
 // scores checked against the ground truth they are computed from, and the report files.
 #include "recogniser/tools/evaluation.h"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -67,7 +68,22 @@ TEST_F(EvaluationTest, InstanceProtocolScoresAgainstTheTruth) {
     // Pose errors exist exactly for correctly recognised queries, and agree with each other.
     EXPECT_EQ(std::isfinite(o.rotation_error_deg), o.model_top1);
     EXPECT_EQ(std::isfinite(o.adds_over_diameter), o.model_top1);
+    EXPECT_EQ(std::isfinite(o.mssd_over_diameter), o.model_top1);
+    EXPECT_EQ(std::isfinite(o.mspd_px), o.model_top1);
     if (o.model_top1) {
+      // MSSD minimises over the symmetries, the identity among them: at most the largest
+      // displacement of a surface sample between the two poses (no symmetry), which the
+      // test computes from the poses alone.
+      const EvalModel& truth = models[o.query_model];
+      double largest = 0.0;
+      for (const Eigen::Vector3f& x : truth.truth.samples) {
+        largest = std::max(largest, (o.estimated_cam_from_model * x.cast<double>() -
+                                     o.truth_cam_from_model * x.cast<double>())
+                                        .norm());
+      }
+      EXPECT_GE(o.mssd_over_diameter, 0.0);
+      EXPECT_LE(o.mssd_over_diameter, largest / truth.truth.diameter + 1e-9);
+      EXPECT_GE(o.mspd_px, 0.0);
       EXPECT_EQ(o.adds_ok, o.adds_over_diameter < options.adds_fraction);
       EXPECT_GE(o.rotation_error_deg, 0.0);
       // The viewing direction turns with the rotation; the centre error (~0.3 mm at
@@ -85,6 +101,12 @@ TEST_F(EvaluationTest, InstanceProtocolScoresAgainstTheTruth) {
   EXPECT_LT(report.MedianTranslationErrorMm(), 3.0);
   EXPECT_LE(report.ModelTop1(), report.ModelTopK());
   EXPECT_LE(report.ClassTop1(), report.ClassTopK());
+  // BOP average recalls: a wrong model misses at every threshold.
+  EXPECT_EQ(report.query_image_width, options.camera_width);
+  EXPECT_GT(report.MssdAverageRecall(), 0.0);
+  EXPECT_LE(report.MssdAverageRecall(), report.ModelTop1());
+  EXPECT_GT(report.MspdAverageRecall(), 0.0);
+  EXPECT_LE(report.MspdAverageRecall(), report.ModelTop1());
 
   std::vector<std::string> labels;
   const auto counts = report.Confusion(&labels);
@@ -101,6 +123,8 @@ TEST_F(EvaluationTest, InstanceProtocolScoresAgainstTheTruth) {
   const nlohmann::json j = nlohmann::json::parse(std::ifstream(out + "/report.json"));
   EXPECT_EQ(j.at("queries").get<int>(), report.queries());
   EXPECT_DOUBLE_EQ(j.at("model_top1").get<double>(), report.ModelTop1());
+  EXPECT_DOUBLE_EQ(j.at("bop_mssd_average_recall").get<double>(), report.MssdAverageRecall());
+  EXPECT_DOUBLE_EQ(j.at("bop_mspd_average_recall").get<double>(), report.MspdAverageRecall());
   EXPECT_EQ(j.at("outcomes").size(), report.outcomes.size());
   for (const char* png : {"/confusion.png", "/pose_errors.png"}) {
     const cv::Mat image = cv::imread(out + png);

@@ -1,23 +1,18 @@
 #include "recogniser/tools/scan_recognition.h"
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 
 #include <fmt/format.h>
 #include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
+#include "core/stopwatch.h"
+#include "core/units.h"
 #include "simulator/scene_builder.h"
 
 namespace sope {
 namespace {
-
-double NowMs() {
-  return std::chrono::duration<double, std::milli>(
-             std::chrono::steady_clock::now().time_since_epoch())
-      .count();
-}
 
 // SplitMix64: the same numbers on every platform.
 struct SplitMix {
@@ -34,7 +29,7 @@ struct SplitMix {
 
 // Uniform on SO(3) (Shoemake, "Uniform random rotations", Graphics Gems III).
 Eigen::Matrix3d RandomRotation(SplitMix* rng) {
-  const double u1 = rng->Uniform(), u2 = 2 * M_PI * rng->Uniform(), u3 = 2 * M_PI * rng->Uniform();
+  const double u1 = rng->Uniform(), u2 = 2 * kPi * rng->Uniform(), u3 = 2 * kPi * rng->Uniform();
   const double a = std::sqrt(1 - u1), b = std::sqrt(u1);
   const Eigen::Quaterniond q(b * std::cos(u3), a * std::sin(u2), a * std::cos(u2),
                              b * std::sin(u3));
@@ -137,7 +132,9 @@ ScanRecognition RecogniseScan(ScanResult scan, const ObjectSegmentationOptions& 
   segmentation.Check();
   ScanRecognition out;
   // The clock started when decoding did (after the last frame).
-  const double start = NowMs() - scan.decode_ms - scan.triangulate_ms;
+  const double decoded_ms = scan.decode_ms + scan.triangulate_ms;
+  const Stopwatch since_decoded;
+  const auto total_ms = [&] { return decoded_ms + since_decoded.WallMs(); };
   out.scan = std::move(scan);
   out.timing.decode = out.scan.decode_ms;
   out.timing.triangulate = out.scan.triangulate_ms;
@@ -147,26 +144,25 @@ ScanRecognition RecogniseScan(ScanResult scan, const ObjectSegmentationOptions& 
     out.message = fmt::format("no points: {} pixels decoded, none triangulated (no projector "
                               "light on the scene, or a wrong calibration?)",
                               out.scan.correspondences.CountValid());
-    out.timing.total = NowMs() - start;
+    out.timing.total = total_ms();
     return out;
   }
-  const double segment_start = NowMs();
+  const Stopwatch segment;
   out.object = SegmentByRange(cloud, segmentation);
-  out.timing.segment = NowMs() - segment_start;
+  out.timing.segment = segment.WallMs();
   if (out.object.size() < kMinObjectPoints) {
     out.status = ScanStatus::kNothingInBand;
     out.message = fmt::format("segmentation left {} of {} points in the range band [{}, {}] m "
                               "(nothing in front of the rig?)",
                               out.object.size(), cloud.size(), segmentation.min_range,
                               segmentation.max_range);
-    out.timing.total = NowMs() - start;
+    out.timing.total = total_ms();
     return out;
   }
-  const double recognise_start = NowMs();
+  const Stopwatch recognise;
   out.recognition = recogniser.Recognise(out.object, recognition_options);
-  const double end = NowMs();
-  out.timing.recognise = end - recognise_start;
-  out.timing.total = end - start;
+  out.timing.recognise = recognise.WallMs();
+  out.timing.total = total_ms();
   if (out.recognition.empty()) {
     out.status = ScanStatus::kNoSuggestion;
     out.message = "no suggestion (the database has no comparable view)";

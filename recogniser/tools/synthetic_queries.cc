@@ -6,10 +6,10 @@
 #include <Eigen/Geometry>
 
 #include "core/error.h"
+#include "core/units.h"
 
 namespace sope {
 namespace {
-constexpr double kPi = 3.14159265358979323846;
 constexpr double kReferenceRange = 0.6;  // metres, where depth_noise applies
 }  // namespace
 
