@@ -1,5 +1,7 @@
-// sope recognise --db DB.sopedb --cloud CLOUD.{ply,pcd} [--top 4] [--json]
+// sope recognise --db DB.sopedb --cloud CLOUD.{ply,pcd} [--top 4] [--json] [--table
+//                [--object-clouds DIR]]
 #include <cstdio>
+#include <filesystem>
 
 #include <spdlog/spdlog.h>
 
@@ -11,6 +13,7 @@
 #include "recogniser/database.h"
 #include "recogniser/faiss_coarse_index.h"
 #include "recogniser/recogniser.h"
+#include "recogniser/scene_recognition.h"
 
 namespace sope {
 
@@ -21,7 +24,8 @@ int RunRecognise(int argc, char** argv) {
                "sope recognise"};
   std::string db_path, cloud_path;
   RecognitionOptions options;
-  bool json = false, no_pose = false;
+  bool json = false, no_pose = false, table = false;
+  std::string object_clouds_dir;
   std::string coarse_index_path;
   cli::LoggingFlags logging;
   app.add_option("--db", db_path, "Database file (.sopedb, from sope build-db)")->required();
@@ -29,6 +33,14 @@ int RunRecognise(int argc, char** argv) {
   cli::AddOptionFlags(app, &options, RecognitionOptions::Fields());
   app.add_flag("--no-pose", no_pose, "Skip pose estimation and verification (ranking only)");
   app.add_flag("--json", json, "Print the result as one JSON object");
+  app.add_flag("--table", table,
+               "Tabletop scene: find the table plane (RANSAC), cluster what stands on it, "
+               "recognise every cluster and verify the scene as a whole; the JSON line gains "
+               "\"objects\" (every recognised object) and \"unknown\" (clusters no model "
+               "explains). Nothing recognised is a result (\"objects\": [])");
+  app.add_option("--object-clouds", object_clouds_dir,
+                 "--table: write each recognised object's segment to DIR/object_K.ply (K as in "
+                 "\"objects\") and each unknown one's to DIR/unknown_K.ply");
   app.add_option("--coarse-index", coarse_index_path,
                  "Coarse stage from a FAISS binary index of the database's codes (sope export-db "
                  "--faiss-binary) instead of the built-in Hamming scan");
@@ -48,6 +60,34 @@ int RunRecognise(int argc, char** argv) {
       return coarse_index->KBestSearch(code, k);
     };
   }
+  if (table) {
+    SceneRecognitionOptions scene_options;
+    scene_options.recognition = options;
+    const SceneRecognitionResult scene = SceneRecogniser(*db).Recognise(cloud, scene_options);
+    if (!object_clouds_dir.empty()) {
+      std::error_code error;
+      std::filesystem::create_directories(object_clouds_dir, error);
+      SOPE_CHECK(!error, "cannot create {}: {}", object_clouds_dir, error.message());
+      auto write = [&](const std::string& name, const std::vector<int>& indices) {
+        PointCloud part;
+        for (const int i : indices) {
+          part.points.push_back(cloud.points[i]);
+          if (cloud.HasColors()) part.colors.push_back(cloud.colors[i]);
+        }
+        WritePointCloud(object_clouds_dir + "/" + name, part);
+      };
+      for (size_t k = 0; k < scene.objects.size(); ++k) {
+        write("object_" + std::to_string(k) + ".ply", scene.objects[k].indices);
+      }
+      for (size_t k = 0; k < scene.unknown.size(); ++k) {
+        write("unknown_" + std::to_string(k) + ".ply", scene.unknown[k].indices);
+      }
+    }
+    std::printf("%s\n", json ? SceneRecognitionResultToJson(scene).c_str()
+                             : SceneBriefReport(scene).c_str());
+    return 0;
+  }
+  SOPE_CHECK(object_clouds_dir.empty(), "--object-clouds needs --table");
   const RecognitionResult result = Recogniser(*db).Recognise(cloud, options);
   SOPE_CHECK(!result.empty(), "no suggestion (the database has no comparable view)");
   if (json) {

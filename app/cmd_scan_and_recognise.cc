@@ -35,6 +35,7 @@ struct Flags {
   cli::PatternFlags patterns;
   cli::LiveRigFlags live;
   cli::LoggingFlags logging;
+  cli::TableFlags table;
   CLI::Option* scans_option = nullptr;
 
   void Add(CLI::App& app);
@@ -94,7 +95,9 @@ void Flags::Add(CLI::App& app) {
                    "unseen (instances not in the database) or database (the default "
                    "database's own instances, seeds 0-7)")
       ->capture_default_str();
-  virtual_group->add_flag("--no-backdrop", no_backdrop, "No backdrop behind the object");
+  virtual_group->add_flag("--no-backdrop", no_backdrop,
+                          "No backdrop behind the object (--table: no wall behind the table)");
+  table.Add(app, true);
   decoder.Add(app);
   triangulation.Add(app);
   auto* live_group = app.add_option_group("live capture (--camera, --virtual)");
@@ -119,6 +122,7 @@ ScanAndRecogniseOptions Flags::ControllerOptions(const std::atomic<bool>* cancel
   options.scan.triangulation = triangulation.ToOptions();
   options.scan.triangulation.num_threads = options.scan.decoder.num_threads;
   options.recognition.top_k = top;
+  options.tabletop = table.table;
   if (min_range >= 0) options.min_range = min_range;
   if (max_range >= 0) options.max_range = max_range;
   options.max_scans = MaxScans();
@@ -162,6 +166,26 @@ std::unique_ptr<ScanSource> MakeSource(const Flags& flags, const Database& db,
                                          : ReadRigCalibration(flags.calibration_path);
   const PatternOptions patterns =
       flags.patterns.ToOptions(calibration.projector.width, calibration.projector.height);
+  SOPE_CHECK(flags.table.table || flags.table.meshes.empty(), "--mesh needs --table");
+  SOPE_CHECK(flags.table.meshes.empty() || flags.table.objects == 0,
+             "--objects and --mesh exclude each other (--mesh sets the objects)");
+  if (flags.use_virtual && flags.table.table) {
+    const RecognitionSceneOptions scenes = SceneOptions(flags, db);
+    VirtualTableSourceOptions options;
+    options.calibration = calibration;
+    options.table = flags.table.ToOptions();
+    options.table.backdrop = !flags.no_backdrop;
+    options.objects = flags.table.objects;
+    options.classes = scenes.classes;
+    options.instance_seed_base = scenes.instance_seed_base;
+    options.instance_count = scenes.instance_count;
+    options.seed = flags.seed;
+    options.sensor = TableSensorOptions(flags.seed);
+    options.patterns = patterns;
+    options.rig = flags.live.RigOptions();
+    options.session = flags.live.SessionOptions(cancel);
+    return std::make_unique<VirtualTableSource>(options);
+  }
   if (flags.use_virtual) {
     VirtualSceneSourceOptions options;
     options.calibration = calibration;

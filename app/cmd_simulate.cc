@@ -1,6 +1,12 @@
 // sope simulate --mesh FILE [--object-pose rx,ry,rz,tx,ty,tz] [--rig RIG.yaml] --out DIR
 // sope simulate --board COLSxROWSxSQUARE_M --views N [--rig RIG.yaml] --out DIR
+// sope simulate --table --mesh A --mesh B ... [--seed N] [--clutter K] [--no-backdrop] --out DIR
 #include <cmath>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <fmt/format.h>
 
 #include <opencv2/core.hpp>
 #include <spdlog/spdlog.h>
@@ -15,6 +21,7 @@
 #include "simulator/board_sequence.h"
 #include "simulator/scene_builder.h"
 #include "simulator/simulate_scan.h"
+#include "simulator/table_scene.h"
 #include "simulator/virtual_rig.h"
 
 namespace sope {
@@ -26,6 +33,78 @@ constexpr double kDefaultObjectSize = kDefaultObjectDiagonal;
 // Beyond this (metres) nothing of the scene can reach a bench-top rig's image.
 constexpr double kMaxSceneDistance = 100.0;
 
+// The sensor flags: bound to `sensor`; for --table, flags not given take
+// TableSensorOptions' values (the hard tabletop defaults).
+struct SensorFlags {
+  SensorOptions sensor;
+  std::vector<std::pair<CLI::Option*, double SensorOptions::*>> doubles;
+  CLI::Option* supersample = nullptr;
+
+  void Add(CLI::App& app) {
+    auto add = [&](const char* name, double SensorOptions::*field, const char* help) {
+      doubles.emplace_back(app.add_option(name, sensor.*field, help)->capture_default_str(), field);
+    };
+    add("--ambient", &SensorOptions::ambient, "Ambient light relative to the projector");
+    add("--defocus", &SensorOptions::defocus_sigma_px, "Projector defocus sigma, projector px");
+    add("--read-noise", &SensorOptions::read_noise, "Camera read noise sigma, grey levels");
+    add("--shot-noise", &SensorOptions::shot_noise, "Shot noise gain (variance per grey level)");
+    supersample = app.add_option("--supersample", sensor.supersample, "Samples per camera pixel side")
+                      ->capture_default_str();
+    app.add_option("--seed", sensor.seed, "Noise seed (--table: also the scene seed)")
+        ->capture_default_str();
+    add("--camera-gamma", &SensorOptions::gamma, "Camera response gamma");
+    add("--projector-gamma", &SensorOptions::projector_gamma, "Projector response gamma");
+    add("--projector-black-level", &SensorOptions::projector_black_level,
+        "Light of a black projector pixel, fraction of white");
+    add("--projector-saturation", &SensorOptions::projector_saturation,
+        "Projector value (0..1] from which it emits full white");
+  }
+  SensorOptions TableOptions() const {
+    SensorOptions options = TableSensorOptions(sensor.seed);
+    for (const auto& [option, field] : doubles) {
+      if (option->count() > 0) options.*field = sensor.*field;
+    }
+    if (supersample->count() > 0) options.supersample = sensor.supersample;
+    return options;
+  }
+};
+
+int RunTableSimulation(const std::vector<std::string>& meshes, double size,
+                       const cli::TableFlags& flags, bool no_backdrop, const SensorOptions& sensor,
+                       const RigCalibration& calibration, const PatternOptions& patterns,
+                       bool allow_empty, const std::string& out) {
+  SOPE_CHECK(!meshes.empty(), "--table needs at least one --mesh");
+  TableSceneOptions options = flags.ToOptions();
+  for (const std::string& spec : meshes) {
+    TableObjectSpec object;
+    object.spec = spec;
+    object.size = size >= 0 ? size : kSizeAsDatabase;
+    options.objects.push_back(object);
+  }
+  options.backdrop = !no_backdrop;
+  options.seed = sensor.seed;
+  TableScene table = MakeTableScene(options, calibration);
+  VirtualRig rig(calibration, sensor);
+  const SimulatedScan scan = SimulateScan(rig, table.scene, patterns);
+  ComputeVisibleFractions(scan.ground_truth.object_id, calibration.camera, &table);
+  const int lit = cv::countNonZero(scan.ground_truth.lit);
+  SOPE_CHECK(lit > 0 || allow_empty, "no camera pixel sees the table lit by the projector");
+  SimulatedScanExtras extras;
+  extras.gt_pose_json = TableGroundTruthJson(table);
+  extras.images.emplace_back("gt_objects.png",
+                             DrawTableObjects(scan.ground_truth.object_id, calibration.camera, table));
+  WriteSimulatedScan(out, scan, extras);
+  std::string summary;
+  for (const TableObjectTruth& truth : table.objects) {
+    summary += fmt::format("{}{} {:.0f}%", summary.empty() ? "" : ", ", truth.model,
+                           100 * truth.visible_fraction);
+  }
+  spdlog::info("table scene {} (camera {:.1f} deg down, {} objects: {}): {} frames -> {}",
+               options.seed, table.camera_tilt_deg, table.objects.size(), summary,
+               scan.frames.images.size(), out);
+  return 0;
+}
+
 }  // namespace
 
 int RunSimulate(int argc, char** argv) {
@@ -35,16 +114,21 @@ int RunSimulate(int argc, char** argv) {
                "calibration sequence, DIR/view_000/... (one frame set per board pose), "
                "DIR/calibration_true.yaml and DIR/gt_board_poses.json.",
                "sope simulate"};
+  std::vector<std::string> mesh_paths;
   std::string mesh_path, pose_text = "0,0,0,0,0,0.6", rig_path, out;
   double size = -1.0, backdrop = 0.0;
-  SensorOptions sensor;
+  SensorFlags sensor_flags;
+  SensorOptions& sensor = sensor_flags.sensor;
+  cli::TableFlags table_flags;
+  bool no_backdrop = false;
   cli::PatternFlags pattern_flags;
   cli::LoggingFlags logging;
   std::string board_text;
   BoardSequenceOptions board_options;
   CLI::Option* mesh_option = app.add_option(
-      "--mesh", mesh_path,
-      "Mesh file (OBJ, PLY, OFF, STL) or builtin:sphere|box|cylinder|torus|plane");
+      "--mesh", mesh_paths,
+      "Mesh file (OBJ, PLY, OFF, STL) or builtin:sphere|box|cylinder|torus|plane, "
+      "builtin:CLASS[:SEED] for a procedural object; several with --table");
   app.add_option("--board", board_text,
                  "Render a calibration sequence of a printed checkerboard instead: "
                  "COLSxROWSxSQUARE_M, COLS x ROWS = INNER corners (OpenCV patternSize; a "
@@ -69,26 +153,9 @@ int RunSimulate(int argc, char** argv) {
                "Write the frame set even when no pixel sees the object lit (else an error)");
   app.add_option("--rig", rig_path, "Rig calibration YAML (default: the built-in desktop rig)");
   app.add_option("--out", out, "Output frame-set directory")->required();
-  app.add_option("--ambient", sensor.ambient, "Ambient light relative to the projector")
-      ->capture_default_str();
-  app.add_option("--defocus", sensor.defocus_sigma_px, "Projector defocus sigma, projector px")
-      ->capture_default_str();
-  app.add_option("--read-noise", sensor.read_noise, "Camera read noise sigma, grey levels")
-      ->capture_default_str();
-  app.add_option("--shot-noise", sensor.shot_noise, "Shot noise gain (variance per grey level)")
-      ->capture_default_str();
-  app.add_option("--supersample", sensor.supersample, "Samples per camera pixel side")
-      ->capture_default_str();
-  app.add_option("--seed", sensor.seed, "Noise seed")->capture_default_str();
-  app.add_option("--camera-gamma", sensor.gamma, "Camera response gamma")->capture_default_str();
-  app.add_option("--projector-gamma", sensor.projector_gamma, "Projector response gamma")
-      ->capture_default_str();
-  app.add_option("--projector-black-level", sensor.projector_black_level,
-                 "Light of a black projector pixel, fraction of white")
-      ->capture_default_str();
-  app.add_option("--projector-saturation", sensor.projector_saturation,
-                 "Projector value (0..1] from which it emits full white")
-      ->capture_default_str();
+  sensor_flags.Add(app);
+  table_flags.Add(app, false);
+  app.add_flag("--no-backdrop", no_backdrop, "--table: no wall behind the table");
   pattern_flags.Add(app);
   logging.Add(app);
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
@@ -99,6 +166,7 @@ int RunSimulate(int argc, char** argv) {
   const PatternOptions patterns =
       pattern_flags.ToOptions(calibration.projector.width, calibration.projector.height);
   if (!board_text.empty()) {
+    SOPE_CHECK(!table_flags.table, "--board and --table exclude each other");
     const BoardSpec board = BoardSpecFromString(board_text);
     board_options.patterns = patterns;
     board_options.Check();
@@ -113,6 +181,21 @@ int RunSimulate(int argc, char** argv) {
                  out);
     return 0;
   }
+  if (table_flags.table) {
+    SOPE_CHECK(backdrop_option->count() == 0,
+               "--backdrop DEPTH is for single-object scenes (--table has a wall; --no-backdrop)");
+    SOPE_CHECK(size_option->count() == 0 ||
+                   (std::isfinite(size) && size > 0.0 && size <= kMaxPlausibleDiagonal),
+               "--object-size must be in (0, {}] m for a table, got {}", kMaxPlausibleDiagonal,
+               size);
+    return RunTableSimulation(mesh_paths, size, table_flags, no_backdrop,
+                              sensor_flags.TableOptions(),
+                              calibration, patterns, allow_empty, out);
+  }
+  SOPE_CHECK(!no_backdrop, "--no-backdrop is for --table (single objects: omit --backdrop)");
+  SOPE_CHECK(mesh_paths.size() <= 1, "--mesh given {} times: several meshes need --table",
+             mesh_paths.size());
+  if (!mesh_paths.empty()) mesh_path = mesh_paths[0];
   SOPE_CHECK(!mesh_path.empty(), "one of --mesh or --board is required");
   const Rigid3d pose = cli::ParsePose(pose_text, "--object-pose");
   const double farthest_coordinate = pose.translation.cwiseAbs().maxCoeff();

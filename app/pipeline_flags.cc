@@ -116,5 +116,45 @@ TriangulationOptions TriangulationFlags::ToOptions() const {
   return result;
 }
 
+void TableFlags::Add(CLI::App& app, bool objects_flags) {
+  app.add_flag("--table", table,
+               objects_flags
+                   ? "Tabletop scans: segment by the table plane and recognise every object; "
+                     "on the virtual rig, scan tabletop scenes (objects in stable resting "
+                     "poses on a table seen from 30-60 degrees above, truth of every object)"
+                   : "A tabletop scene: objects in stable resting poses on a table seen from "
+                     "30-60 degrees above (simulator/table_scene.h), ground truth of every "
+                     "object");
+  auto* group = app.add_option_group("table scenes (--table)");
+  if (objects_flags) {
+    group->add_option("--objects", objects,
+                      "Procedural objects per table scene (default: 3-5, drawn per scene)");
+    group->add_option("--mesh", meshes,
+                      "--table: put these meshes (files or builtin:CLASS[:SEED]; the database "
+                      "should hold them) on the table instead of procedural objects");
+  }
+  group->add_option("--clutter", scene.clutter,
+                    "Unknown clutter objects (tori, stones: in no database) on the table")
+      ->capture_default_str();
+  group->add_option("--tilt-min", scene.camera_tilt_deg_min, "Camera tilt range, degrees")
+      ->capture_default_str();
+  group->add_option("--tilt-max", scene.camera_tilt_deg_max, "Camera tilt range, degrees")
+      ->capture_default_str();
+  group->add_option("--table-distance", scene.table_distance,
+                    "Camera centre to the table along the optical axis, metres")
+      ->capture_default_str();
+}
+
+TableSceneOptions TableFlags::ToOptions() const {
+  TableSceneOptions options = scene;
+  for (const std::string& mesh : meshes) {
+    TableObjectSpec object;
+    object.spec = mesh;
+    object.size = kSizeAsDatabase;
+    options.objects.push_back(object);
+  }
+  return options;
+}
+
 }  // namespace cli
 }  // namespace sope

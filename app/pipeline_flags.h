@@ -3,12 +3,14 @@
 #pragma once
 
 #include <string>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 
 #include "calibration/triangulation.h"
 #include "decoder/decoder.h"
 #include "projector/patterns.h"
+#include "simulator/table_scene.h"
 
 namespace sope {
 namespace cli {
@@ -46,6 +48,20 @@ struct TriangulationFlags {
   std::string method = "midpoint";
   void Add(CLI::App& app);
   TriangulationOptions ToOptions() const;
+};
+
+// Tabletop scenes (`simulate --table`, `scan-and-recognise --virtual --table`): --table,
+// --clutter, --tilt-min/--tilt-max, --table-distance, and with `objects_flags` --objects N
+// and --mesh (repeated: these objects instead of procedural ones).
+struct TableFlags {
+  bool table = false;
+  int objects = 0;  // 0: 3-5 per scene
+  std::vector<std::string> meshes;
+  TableSceneOptions scene;
+  void Add(CLI::App& app, bool objects_flags);
+  // Clutter, tilt, distance and the --mesh objects (sized as build-db does); seed and
+  // backdrop are the caller's.
+  TableSceneOptions ToOptions() const;
 };
 
 }  // namespace cli

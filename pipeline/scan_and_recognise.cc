@@ -17,6 +17,9 @@
 #include "core/file_util.h"
 #include "core/json.h"
 #include "core/point_cloud.h"
+#include "core/stopwatch.h"
+#include "recogniser/tools/scan_recognition.h"
+#include <opencv2/imgproc.hpp>
 
 namespace sope {
 namespace {
@@ -53,6 +56,9 @@ void RemoveFiles(const ScanFiles& files) {
   std::error_code ignored;
   for (const std::string* path : {&files.cloud, &files.object_cloud, &files.overlay}) {
     if (!path->empty()) fs::remove(*path, ignored);
+  }
+  for (const auto* list : {&files.object_clouds, &files.unknown_clouds}) {
+    for (const std::string& path : *list) fs::remove(path, ignored);
   }
 }
 
@@ -134,7 +140,11 @@ void ScanAndRecogniseOptions::Check() const {
 ScanAndRecogniseController::ScanAndRecogniseController(const ScanAndRecogniseOptions& options,
                                                        ScanSource* source,
                                                        const Database& database)
-    : options_(options), source_(source), database_(database), recogniser_(database) {
+    : options_(options),
+      source_(source),
+      database_(database),
+      recogniser_(database),
+      scene_recogniser_(database) {
   options_.Check();
   SOPE_CHECK(source_ != nullptr, "scan and recognise: no scan source");
   live_decode_ = std::make_unique<LiveDecode>();
@@ -161,8 +171,11 @@ ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& pr
   }
   CorrespondenceMap decoded;
   double decode_ms = 0.0;
-  if (live_decode_->Finish(in.frames, &decoded, &decode_ms)) {
-    // Decoded during the capture: only the last frame's bit and the finish were left.
+  // Decoded during the capture: only the last frame's bit and the finish were left.
+  const bool live = live_decode_->Finish(in.frames, &decoded, &decode_ms);
+  if (options_.tabletop || in.tabletop) {
+    ScanTable(in.frames, live ? &decoded : nullptr, decode_ms, &report);
+  } else if (live) {
     report.result = RecogniseScan(ScanDecoded(in.frames, std::move(decoded), decode_ms,
                                               *triangulator_),
                                   report.band, recogniser_, options_.recognition);
@@ -174,6 +187,9 @@ ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& pr
   report.message = report.result.message;
   report.truth = std::move(in.truth);
   const RecognitionResult& recognition = report.result.recognition;
+  if (report.scene && report.truth) {
+    report.matches = MatchTableObjects(*report.scene, *report.truth, database_);
+  }
   if (report.truth && !recognition.empty()) {
     const Suggestion& best = recognition.best();
     report.class_correct = best.class_name == report.truth->class_name;
@@ -186,6 +202,83 @@ ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& pr
   report.camera = in.calibration.camera;
   report.json = ScanReportToJson(report);
   return report;
+}
+
+void ScanAndRecogniseController::ScanTable(const FrameSet& frames, CorrespondenceMap* decoded,
+                                           double decode_ms, ScanReport* report) {
+  const Stopwatch watch;
+  ScanRecognition& out = report->result;
+  out.scan = decoded != nullptr
+                 ? ScanDecoded(frames, std::move(*decoded), decode_ms, *triangulator_)
+                 : ScanFrameSet(frames, *triangulator_, options_.scan.decoder);
+  out.timing.decode = out.scan.decode_ms;
+  out.timing.triangulate = out.scan.triangulate_ms;
+  const PointCloud& cloud = out.scan.triangulation.cloud;
+  if (cloud.size() < 3) {
+    out.status = ScanStatus::kNoPoints;
+    out.message = fmt::format("no points: {} point(s) triangulated (no projector light on the "
+                              "scene, or a wrong calibration?)",
+                              cloud.size());
+    out.timing.total = watch.WallMs();
+    return;
+  }
+  SceneRecognitionOptions scene_options = options_.scene;
+  scene_options.recognition = options_.recognition;
+  scene_options.segmentation.min_range = report->band.min_range;
+  scene_options.segmentation.max_range = report->band.max_range;
+  SceneRecognitionResult scene = scene_recogniser_.Recognise(cloud, scene_options);
+  out.timing.segment = scene.timing.segment;
+  out.timing.recognise = scene.timing.recognise + scene.timing.verify;
+  if (scene.objects.empty()) {
+    out.status = ScanStatus::kNoSuggestion;
+    out.message = !scene.segmentation.message.empty()
+                      ? scene.segmentation.message
+                      : fmt::format("no known object on the table ({} cluster(s), {} unknown)",
+                                    scene.segmentation.clusters.size(), scene.unknown.size());
+  } else {
+    out.status = ScanStatus::kRecognised;
+    out.recognition = scene.objects.front().recognition;
+    for (const int i : scene.objects.front().indices) out.object.points.push_back(cloud.points[i]);
+  }
+  report->scene = std::move(scene);
+  out.timing.total = watch.WallMs();
+}
+
+std::vector<TableObjectMatch> MatchTableObjects(const SceneRecognitionResult& scene,
+                                                const ScanTruth& truth, const Database& database) {
+  std::vector<TableObjectMatch> matches;
+  std::vector<uint8_t> used(scene.objects.size(), 0);
+  for (size_t t = 0; t < truth.objects.size(); ++t) {
+    const ScanObjectTruth& object = truth.objects[t];
+    const PoseTruthModel model = MakePoseTruthModel(object.mesh, {2000, 1});
+    const Eigen::Vector3d centre = object.cam_from_model * model.center;
+    TableObjectMatch match;
+    match.truth = static_cast<int>(t);
+    double nearest = 0.5 * model.diameter;
+    for (size_t d = 0; d < scene.objects.size(); ++d) {
+      if (used[d]) continue;
+      const Suggestion& s = scene.objects[d].best();
+      const ModelRecord& record = database.model(s.model);
+      const Eigen::Vector3d detected = s.cam_from_model * record.center;
+      const double distance = (detected - centre).norm();
+      if (distance < nearest) {
+        nearest = distance;
+        match.detection = static_cast<int>(d);
+      }
+    }
+    if (match.detection >= 0) {
+      used[match.detection] = 1;
+      const Suggestion& s = scene.objects[match.detection].best();
+      match.model_correct = object.known && s.model_name == object.model;
+      match.class_correct = object.known && s.class_name == object.class_name;
+      if (match.class_correct) {
+        match.pose_error = ComparePoses(s.cam_from_model, object.cam_from_model, model);
+        match.correct = match.model_correct && match.pose_error->adds_over_diameter() < 0.1;
+      }
+    }
+    matches.push_back(match);
+  }
+  return matches;
 }
 
 int ScanAndRecogniseController::Run(const ScanCallback& callback,
@@ -229,6 +322,25 @@ void WriteScanOutputs(const std::string& out_dir, const Database& database, Scan
       files.object_cloud = JoinPath(out_dir, stem + "_object.ply");
       WritePointCloud(files.object_cloud, object);
     }
+    if (report->scene) {
+      auto subset = [&cloud](const std::vector<int>& indices) {
+        PointCloud part;
+        for (const int i : indices) {
+          part.points.push_back(cloud.points[i]);
+          if (cloud.HasColors()) part.colors.push_back(cloud.colors[i]);
+        }
+        return part;
+      };
+      for (size_t k = 0; k < report->scene->objects.size(); ++k) {
+        files.object_clouds.push_back(JoinPath(out_dir, fmt::format("{}_object_{}.ply", stem, k)));
+        WritePointCloud(files.object_clouds.back(), subset(report->scene->objects[k].indices));
+      }
+      for (size_t k = 0; k < report->scene->unknown.size(); ++k) {
+        files.unknown_clouds.push_back(
+            JoinPath(out_dir, fmt::format("{}_unknown_{}.ply", stem, k)));
+        WritePointCloud(files.unknown_clouds.back(), subset(report->scene->unknown[k].indices));
+      }
+    }
     files.overlay = JoinPath(out_dir, stem + "_overlay.png");
     WriteImageAtomic(files.overlay, DrawScanOverlay(*report, database));
     report->json = ScanReportToJson(*report);
@@ -259,7 +371,42 @@ std::string ScanReportToJson(const ScanReport& report) {
     j["message"] = report.message;
     j["objects"] = nlohmann::json::array();  // DESIGN.md: nothing recognised
   }
-  if (report.truth) j["ground_truth"] = TruthJson(report);
+  if (report.scene) {
+    // Tabletop: every object (DESIGN.md "objects"), the unknown ones, the table.
+    const nlohmann::json scene = nlohmann::json::parse(SceneRecognitionResultToJson(*report.scene));
+    for (const char* key : {"objects", "unknown", "table", "clusters", "hypotheses", "scene_ms"}) {
+      j[key] = scene[key];
+    }
+    for (size_t k = 0; k < report.files.object_clouds.size() && k < j["objects"].size(); ++k) {
+      j["objects"][k]["cloud"] = report.files.object_clouds[k];
+    }
+  }
+  if (report.truth) {
+    j["ground_truth"] = TruthJson(report);
+    if (report.scene) {
+      nlohmann::json truth_objects = nlohmann::json::array();
+      for (const TableObjectMatch& m : report.matches) {
+        const ScanObjectTruth& t = report.truth->objects[m.truth];
+        nlohmann::json o = {{"model", t.model},
+                            {"class", t.class_name},
+                            {"known", t.known},
+                            {"visible_fraction", t.visible_fraction},
+                            {"pose", Rigid3dToJson(t.cam_from_model)},
+                            {"detection", m.detection},
+                            {"model_correct", m.model_correct},
+                            {"class_correct", m.class_correct},
+                            {"correct", m.correct}};
+        if (m.pose_error) {
+          o["rotation_error_deg"] = m.pose_error->rotation_error_deg;
+          o["center_error_m"] = m.pose_error->center_error_m;
+          o["adds_m"] = m.pose_error->adds_m;
+          o["diameter_m"] = m.pose_error->diameter_m;
+        }
+        truth_objects.push_back(std::move(o));
+      }
+      j["ground_truth"]["objects"] = std::move(truth_objects);
+    }
+  }
   const ScanFiles& files = report.files;
   if (!files.overlay.empty()) {
     nlohmann::json f = {{"overlay", files.overlay}};
@@ -273,6 +420,26 @@ std::string ScanReportToJson(const ScanReport& report) {
 std::string ScanReportToText(const ScanReport& report) {
   const ScanRecognition& result = report.result;
   std::string text;
+  if (report.scene && report.status == ScanStatus::kRecognised) {
+    text = fmt::format("scan {}:", report.index);
+    for (const RecognisedObject& object : report.scene->objects) {
+      text += fmt::format(" {} ({}, {:.2f}, {} points);", object.best().class_name,
+                          object.best().model_name, object.best().score, object.indices.size());
+    }
+    text += fmt::format(" {} unknown; frame to result {:.0f} ms (decode {:.0f}, triangulate "
+                        "{:.0f}, segment {:.0f}, recognise {:.0f})",
+                        report.scene->unknown.size(), result.timing.total, result.timing.decode,
+                        result.timing.triangulate, result.timing.segment, result.timing.recognise);
+    if (report.truth) {
+      int right = 0, known = 0;
+      for (const TableObjectMatch& m : report.matches) {
+        known += report.truth->objects[m.truth].known;
+        right += m.correct;
+      }
+      text += fmt::format("; truth: {} of {} known objects right", right, known);
+    }
+    return text;
+  }
   if (report.status == ScanStatus::kRecognised) {
     const Suggestion& best = result.recognition.best();
     text = fmt::format("scan {}: {} ({}), score {:.2f}, {} object points; frame to result "
@@ -299,7 +466,61 @@ std::string ScanReportToText(const ScanReport& report) {
   return text;
 }
 
+namespace {
+
+// Every recognised object of a tabletop scan drawn over the image, each labelled at its
+// projected centre; unknown clusters marked "unknown".
+cv::Mat DrawTableOverlay(const ScanReport& report, const Database& database) {
+  const SceneRecognitionResult& scene = *report.scene;
+  const std::string title =
+      scene.objects.empty()
+          ? (report.message.empty() ? std::string("nothing recognised") : report.message)
+          : fmt::format("{} object(s), {} unknown", scene.objects.size(), scene.unknown.size());
+  cv::Mat image = DrawRecognitionOverlay(report.image, report.camera, std::vector<Eigen::Vector3f>{},
+                                         Rigid3d(), title);
+  std::vector<std::pair<cv::Point, std::string>> labels;
+  for (const RecognisedObject& object : scene.objects) {
+    const Suggestion& s = object.best();
+    const ModelRecord& model = database.model(s.model);
+    try {
+      TriangleMesh mesh = ReadMesh(model.source_path);
+      mesh.Transform(model.scale, Eigen::Vector3d::Zero());
+      image = DrawRecognitionOverlay(image, report.camera, mesh, s.cam_from_model, title);
+    } catch (const Error&) {
+      image = DrawRecognitionOverlay(image, report.camera, database.ViewCloud(s.view).points,
+                                     s.cam_from_model, title);
+    }
+    const Eigen::Vector2d uv = report.camera.ImageFromCam(s.cam_from_model * model.center);
+    if (uv.allFinite()) {
+      labels.emplace_back(cv::Point(static_cast<int>(uv.x()), static_cast<int>(uv.y())),
+                          fmt::format("{} {:.2f}", s.model_name, s.score));
+    }
+  }
+  for (const UnknownObject& unknown : scene.unknown) {
+    const Eigen::Vector2d uv = report.camera.ImageFromCam(unknown.centroid.cast<double>());
+    if (uv.allFinite()) {
+      labels.emplace_back(cv::Point(static_cast<int>(uv.x()), static_cast<int>(uv.y())),
+                          "unknown");
+    }
+  }
+  const double scale = std::max(0.5, image.cols / 1800.0);
+  for (const auto& [at, text] : labels) {
+    int baseline = 0;
+    const cv::Size size = cv::getTextSize(text, cv::FONT_HERSHEY_SIMPLEX, scale, 1, &baseline);
+    const cv::Point origin(at.x - size.width / 2, at.y);
+    cv::rectangle(image, origin + cv::Point(-3, baseline + 3),
+                  origin + cv::Point(size.width + 3, -size.height - 3), cv::Scalar(0, 0, 0),
+                  cv::FILLED);
+    cv::putText(image, text, origin, cv::FONT_HERSHEY_SIMPLEX, scale, cv::Scalar(0, 255, 255), 1,
+                cv::LINE_AA);
+  }
+  return image;
+}
+
+}  // namespace
+
 cv::Mat DrawScanOverlay(const ScanReport& report, const Database& database) {
+  if (report.scene) return DrawTableOverlay(report, database);
   const RecognitionResult& result = report.result.recognition;
   if (result.empty()) {
     const std::string label =

@@ -30,6 +30,7 @@
 #include "recogniser/database.h"
 #include "recogniser/pose_metrics.h"
 #include "recogniser/recogniser.h"
+#include "recogniser/scene_recognition.h"
 #include "recogniser/tools/scan_recognition.h"
 
 namespace sope {
@@ -50,6 +51,12 @@ struct ScanAndRecogniseOptions {
   // sope::Error (its message) before its outputs are written, instead of being reported:
   // for a single scan, where seeing nothing is a failure.
   bool fail_on_nothing_found = false;
+  // Tabletop mode (`--table`; a source flagging its scans `tabletop` sets it per scan):
+  // segment by the table plane and clusters, recognise every object, verify the scene
+  // (recogniser/scene_recognition.h) instead of one object in the range band. The band
+  // above (when set) still limits the points considered.
+  bool tabletop = false;
+  SceneRecognitionOptions scene;  // its `recognition` is replaced by `recognition` above
   // Checked between scans; when it becomes true the run ends after the current scan (a
   // capture under way is cancelled by the source's session, which watches the same flag).
   const std::atomic<bool>* cancel = nullptr;
@@ -59,7 +66,25 @@ struct ScanAndRecogniseOptions {
 
 struct ScanFiles {
   std::string cloud, object_cloud, overlay;  // empty: not written
+  // Tabletop: scan_NNNN_object_K.ply, the segment of each recognised object K (in the
+  // order of "objects"), and scan_NNNN_unknown_K.ply of each unknown one.
+  std::vector<std::string> object_clouds, unknown_clouds;
 };
+
+// A truth object of a tabletop scan and the recognised object matched to it (the nearest
+// by bounding-box centre within half the truth's diameter, each detection used once).
+struct TableObjectMatch {
+  int truth = -1;      // into ScanTruth::objects
+  int detection = -1;  // into SceneRecognitionResult::objects, −1: missed / rejected
+  bool model_correct = false;
+  bool class_correct = false;
+  std::optional<PoseComparison> pose_error;  // detected with the right class
+  // Right: model right and ADD-S < 10% of the diameter (issue 12's detection criterion).
+  bool correct = false;
+};
+// Matches a scene result against the truth objects (known and clutter).
+std::vector<TableObjectMatch> MatchTableObjects(const SceneRecognitionResult& scene,
+                                                const ScanTruth& truth, const Database& database);
 
 struct ScanReport {
   int index = 0;
@@ -72,6 +97,9 @@ struct ScanReport {
   std::optional<ScanTruth> truth;
   bool class_correct = false;      // truth known and the first suggestion's class is it
   std::optional<PoseComparison> pose_error;  // truth known and the class correct
+  // Tabletop scans: every object, and the matches with the truth (when known).
+  std::optional<SceneRecognitionResult> scene;
+  std::vector<TableObjectMatch> matches;
   ScanFiles files;
   std::string json;                // the results line (no newline)
   // For the overlay: the camera's white frame (or its first frame) and the camera.
@@ -99,10 +127,15 @@ class ScanAndRecogniseController {
   ScanReport Scan(int index, const CaptureProgress& progress = {});
 
  private:
+  // Tabletop: decode, triangulate, SceneRecogniser; fills report->result and ->scene.
+  // `decoded`: the map decoded during the capture (decode_ms its time), else nullptr.
+  void ScanTable(const FrameSet& frames, CorrespondenceMap* decoded, double decode_ms,
+                 ScanReport* report);
   ScanAndRecogniseOptions options_;
   ScanSource* source_;
   const Database& database_;
   Recogniser recogniser_;
+  SceneRecogniser scene_recogniser_;
   std::unique_ptr<Triangulator> triangulator_;  // per calibration (undistortion tables)
   RigCalibration triangulator_calibration_;
   // Decoding during the capture (sources that capture: the frame sink's IncrementalDecoder).

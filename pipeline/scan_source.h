@@ -23,15 +23,34 @@
 #include "recogniser/database.h"
 #include "recogniser/tools/scan_recognition.h"
 #include "simulator/procedural_objects.h"
+#include "simulator/table_scene.h"
+#include "simulator/virtual_rig.h"
 
 namespace sope {
 
-// What the scene really held (virtual sources only).
+// One object of a virtual scene.
+struct ScanObjectTruth {
+  std::string model, class_name;  // names a database built from the same meshes gives
+  uint64_t instance_seed = 0;     // procedural objects
+  bool known = true;              // false: clutter, in no database
+  TriangleMesh mesh;              // model frame, metres
+  Rigid3d cam_from_model;
+  double visible_fraction = 1.0;  // pixels seen in the scene / pixels when alone
+  int gt_object_id = 0;           // the simulator's object index + 1
+};
+
+// What the scene really held (virtual sources only). The single fields describe the
+// scene's one object — on a table, its most visible known object; `objects` lists every
+// object (for single-object scenes: that object).
 struct ScanTruth {
   std::string class_name;
   uint64_t instance_seed = 0;
   TriangleMesh mesh;       // model frame, metres
   Rigid3d cam_from_model;
+  std::vector<ScanObjectTruth> objects;  // known first, then clutter
+  // Tabletop scenes: the table plane in the camera frame, n·x + d = 0, unit n towards
+  // the camera.
+  std::optional<Eigen::Vector4d> table_plane_in_cam;
 };
 
 struct SourceScan {
@@ -40,6 +59,9 @@ struct SourceScan {
   std::string calibration_source = "the calibration";  // names it in messages
   std::string source;          // "virtual", "/dev/video0", the frame-set directory, …
   std::optional<ScanTruth> truth;
+  // The scene is a tabletop (several objects on a dominant plane): the controller
+  // segments by the table, not by a range band alone.
+  bool tabletop = false;
   // A range band that keeps the object and none of the background, when the source knows
   // one (the virtual scenes do); else the controller's default.
   std::optional<ObjectSegmentationOptions> band;
@@ -137,6 +159,53 @@ class VirtualSceneSource : public ScanSource {
   std::unique_ptr<RigSession> session_;
   std::vector<Pattern> sequence_;
 };
+
+// Tabletop scenes on the virtual rig (simulator/table_scene.h), captured through a
+// RigSession: scan i shows MakeTableScene with seed + i — the meshes of `table.objects`
+// when given (the same objects, re-placed every scan), else `objects` procedural objects
+// (0: 3–5, drawn per scene) of `classes` with instance seeds instance_seed_base + [0,
+// instance_count) (unseen instances by default) — under `sensor` (TableSensorOptions: hard
+// and realistic). Every object's truth (visible fraction included) is in SourceScan::truth;
+// the scan is flagged `tabletop`.
+struct VirtualTableSourceOptions {
+  RigCalibration calibration;       // default: the virtual rig's true calibration
+  TableSceneOptions table;          // objects (optional), clutter, backdrop, tilt, distance
+  int objects = 0;                  // procedural objects per scene, 0 = 3–5
+  std::vector<ObjectClass> classes; // empty: all ten
+  uint64_t instance_seed_base = 1000;
+  int instance_count = 1000;
+  uint64_t seed = 1;
+  SensorOptions sensor = TableSensorOptions();
+  PatternOptions patterns;          // projector size = the calibration's
+  LiveRigOptions rig;               // the virtual camera's delay and jitter
+  RigSessionOptions session;
+  void Check() const;
+};
+class VirtualTableSource : public ScanSource {
+ public:
+  explicit VirtualTableSource(const VirtualTableSourceOptions& options);
+  int size() const override { return -1; }
+  bool fixed_calibration() const override { return true; }
+  SourceScan Next(int index, const CaptureProgress& progress = {}) override;
+  void SetFrameSink(RigSession::FrameSink sink) override { session_->SetFrameSink(std::move(sink)); }
+  // The scene of the last Next (before the first: of scan 0).
+  const TableScene& scene() const { return scene_; }
+  // The options MakeTableScene gets for scan `index`: draw 0, 1, … of the procedural
+  // objects (a draw that does not fit on the table is replaced by the next, at most
+  // kProceduralDraws).
+  TableSceneOptions SceneOptions(int index, int draw = 0) const;
+  static constexpr int kProceduralDraws = 20;
+
+ private:
+  TableScene MakeScene(int index) const;
+  VirtualTableSourceOptions options_;
+  TableScene scene_;
+  LiveRig rig_;
+  std::unique_ptr<RigSession> session_;
+  std::vector<Pattern> sequence_;
+};
+// The ground truth of a table scene (its visible fractions computed).
+ScanTruth TableSceneTruth(const TableScene& scene);
 
 // The database's classes that are procedural classes (mug, bottle, …: what virtual scenes
 // can show), in the database's order.

@@ -37,6 +37,11 @@ SimulatedScan SimulateScan(VirtualRig& rig, const Scene& scene,
 }
 
 void WriteSimulatedScan(const std::string& directory, const SimulatedScan& scan) {
+  WriteSimulatedScan(directory, scan, SimulatedScanExtras());
+}
+
+void WriteSimulatedScan(const std::string& directory, const SimulatedScan& scan,
+                        const SimulatedScanExtras& extras) {
   StagedDirectory staged(directory, FrameSetManifest::kFileName);
   const std::string& out = staged.path();
   WriteFrameSetFiles(out, scan.frames);
@@ -49,6 +54,12 @@ void WriteSimulatedScan(const std::string& directory, const SimulatedScan& scan)
   cv::Mat object_id;
   truth.object_id.convertTo(object_id, CV_16UC1, 1.0, 1.0);
   WriteImageAtomic(JoinPath(out, "gt_object_id.png"), object_id);
+  for (const auto& [name, image] : extras.images) WriteImageAtomic(JoinPath(out, name), image);
+  if (!extras.gt_pose_json.empty()) {
+    WriteFileAtomic(JoinPath(out, "gt_pose.json"), extras.gt_pose_json);
+    staged.Commit();
+    return;
+  }
   nlohmann::json objects = nlohmann::json::array();
   for (const SceneObject& object : scan.scene.objects) {
     objects.push_back({{"cam_from_model", Rigid3dToJson(object.cam_from_model)},

@@ -3,6 +3,8 @@
 #pragma once
 
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "core/frame_set.h"
 #include "core/rig_calibration.h"
@@ -28,6 +30,14 @@ SimulatedScan SimulateScan(VirtualRig& rig, const Scene& scene,
 // gt_proj_y.exr, gt_lit.png, gt_object_id.png (16-bit, 0 = none, i+1 = object i) and
 // gt_pose.json (cam_from_model of every object: rotation 3×3, translation in metres).
 void WriteSimulatedScan(const std::string& directory, const SimulatedScan& scan);
+
+// What a scene adds to the files above (table scenes: simulator/table_scene.h).
+struct SimulatedScanExtras {
+  std::string gt_pose_json;  // replaces gt_pose.json's contents when not empty
+  std::vector<std::pair<std::string, cv::Mat>> images;  // file name → image, written too
+};
+void WriteSimulatedScan(const std::string& directory, const SimulatedScan& scan,
+                        const SimulatedScanExtras& extras);
 
 // Ground truth read back from a directory WriteSimulatedScan wrote (depth, projector
 // coordinates, lit mask, object ids). Throws sope::Error naming a missing file.

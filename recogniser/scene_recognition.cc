@@ -1,0 +1,432 @@
+#include "recogniser/scene_recognition.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <mutex>
+#include <unordered_map>
+
+#include <fmt/format.h>
+#include <nlohmann/json.hpp>
+
+#include "core/error.h"
+#include "core/stopwatch.h"
+
+namespace sope {
+namespace {
+
+uint64_t VoxelKey(const Eigen::Vector3f& p, float inv_leaf) {
+  const auto cx = static_cast<int64_t>(std::floor(p.x() * inv_leaf)) + (1 << 20);
+  const auto cy = static_cast<int64_t>(std::floor(p.y() * inv_leaf)) + (1 << 20);
+  const auto cz = static_cast<int64_t>(std::floor(p.z() * inv_leaf)) + (1 << 20);
+  return (static_cast<uint64_t>(cx) << 42) ^ (static_cast<uint64_t>(cy) << 21) ^
+         static_cast<uint64_t>(cz);
+}
+
+// Scene points to explain: the clusters' points thinned to one per voxel (the first), each
+// raw cluster point knowing its thinned point.
+struct ThinnedScene {
+  PointCloud points;
+  std::vector<int> cluster_of;        // per thinned point
+  std::vector<int> thinned_of_input;  // per input point: its thinned point or −1
+};
+
+ThinnedScene ThinClusters(const PointCloud& cloud, const std::vector<ObjectCluster>& clusters,
+                          double leaf) {
+  ThinnedScene scene;
+  scene.thinned_of_input.assign(cloud.size(), -1);
+  const float inv_leaf = static_cast<float>(1.0 / leaf);
+  std::unordered_map<uint64_t, int> voxel;
+  for (size_t c = 0; c < clusters.size(); ++c) {
+    for (const int i : clusters[c].indices) {
+      auto [it, inserted] = voxel.emplace(VoxelKey(cloud.points[i], inv_leaf),
+                                          static_cast<int>(scene.points.size()));
+      if (inserted) {
+        scene.points.points.push_back(cloud.points[i]);
+        scene.cluster_of.push_back(static_cast<int>(c));
+      }
+      scene.thinned_of_input[i] = it->second;
+    }
+  }
+  return scene;
+}
+
+struct Hypothesis {
+  int cluster = 0;
+  RecognitionResult recognition;  // the suggestion in front
+  double snap = 0.0;
+  bool flipped = false;
+};
+
+// Height of the model's surface centroid above the plane over the model's diameter (the
+// stability prior: lower is more stable).
+double CentreOfMassHeight(const PointCloud& surface, const Rigid3d& cam_from_model,
+                          const TablePlane& plane, double diameter) {
+  if (surface.empty() || !(diameter > 0)) return 0.0;
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3f& p : surface.points) sum += p.cast<double>();
+  const Eigen::Vector3d centroid = cam_from_model * (sum / static_cast<double>(surface.size()));
+  return plane.Height(centroid.cast<float>()) / diameter;
+}
+
+}  // namespace
+
+struct SceneRecogniser::Cache {
+  std::mutex mutex;
+  std::map<std::pair<int, double>, std::unique_ptr<PointCloud>> surfaces;
+};
+
+void SceneRecognitionOptions::Check() const {
+  segmentation.Check();
+  recognition.Check();
+  verification.Check();
+  SOPE_CHECK(hypotheses_per_cluster >= 1,
+             "scene recognition: hypotheses per cluster must be ≥ 1, got {}",
+             hypotheses_per_cluster);
+  SOPE_CHECK(min_hypothesis_score >= 0 && min_hypothesis_score <= 1,
+             "scene recognition: min hypothesis score must be in [0, 1], got {}",
+             min_hypothesis_score);
+  SOPE_CHECK(max_snap >= 0, "scene recognition: max snap must be ≥ 0 m, got {}", max_snap);
+  SOPE_CHECK(max_float >= max_snap, "scene recognition: max float must be ≥ max snap ({} m), got {}",
+             max_snap, max_float);
+  SOPE_CHECK(max_recognition_points >= 100,
+             "scene recognition: max recognition points must be ≥ 100, got {}",
+             max_recognition_points);
+  SOPE_CHECK(remainder_fraction >= 0 && remainder_fraction <= 1,
+             "scene recognition: remainder fraction must be in [0, 1], got {}",
+             remainder_fraction);
+  SOPE_CHECK(stability_weight >= 0, "scene recognition: stability weight must be ≥ 0, got {}",
+             stability_weight);
+  SOPE_CHECK(scene_leaf > 0 && model_leaf > 0,
+             "scene recognition: leaves must be > 0 m, got {} and {}", scene_leaf, model_leaf);
+}
+
+SceneRecogniser::SceneRecogniser(const Database& database)
+    : database_(database), recogniser_(database), cache_(std::make_unique<Cache>()) {}
+SceneRecogniser::~SceneRecogniser() = default;
+
+const PointCloud& SceneRecogniser::ModelSurface(int model, double leaf) const {
+  SOPE_CHECK(model >= 0 && model < database_.num_models(),
+             "scene recognition: model {} out of range (database of {})", model,
+             database_.num_models());
+  std::lock_guard<std::mutex> lock(cache_->mutex);
+  std::unique_ptr<PointCloud>& slot = cache_->surfaces[{model, leaf}];
+  if (slot) return *slot;
+  auto surface = std::make_unique<PointCloud>();
+  const ModelRecord& record = database_.model(model);
+  const float inv_leaf = static_cast<float>(1.0 / leaf);
+  std::unordered_map<uint64_t, int> voxel;
+  PointCloud view;
+  for (int v = record.first_view; v < record.first_view + record.num_views; ++v) {
+    database_.ViewCloud(v, &view);
+    for (size_t i = 0; i < view.size(); ++i) {
+      if (!voxel.emplace(VoxelKey(view.points[i], inv_leaf), 0).second) continue;
+      surface->points.push_back(view.points[i]);
+      surface->normals.push_back(view.HasNormals() ? view.normals[i]
+                                                   : Eigen::Vector3f::UnitZ().eval());
+    }
+  }
+  slot = std::move(surface);
+  return *slot;
+}
+
+SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
+                                                  const SceneRecognitionOptions& options) const {
+  options.Check();
+  const Stopwatch total;
+  SceneRecognitionResult result;
+  result.segmentation = SegmentTable(cloud, options.segmentation);
+  result.timing.segment = result.segmentation.ms;
+  const std::vector<ObjectCluster>& clusters = result.segmentation.clusters;
+  const TablePlane& plane = result.segmentation.plane;
+  if (clusters.empty()) {
+    result.timing.total = total.WallMs();
+    return result;
+  }
+  const ThinnedScene scene = ThinClusters(cloud, clusters, options.scene_leaf);
+
+  std::vector<Hypothesis> hypotheses;
+  std::vector<RecognitionResult> cluster_results(clusters.size());
+  auto recognise = [&](int cluster, const PointCloud& points) {
+    const Stopwatch watch;
+    RecognitionResult recognition;
+    try {
+      if (static_cast<int>(points.size()) > options.max_recognition_points) {
+        // An even subsample: the recogniser thins to its voxel leaf anyway.
+        PointCloud thinned;
+        const double step = static_cast<double>(points.size()) / options.max_recognition_points;
+        for (int k = 0; k < options.max_recognition_points; ++k) {
+          thinned.points.push_back(points.points[static_cast<size_t>(k * step)]);
+        }
+        recognition = recogniser_.Recognise(thinned, options.recognition);
+      } else {
+        recognition = recogniser_.Recognise(points, options.recognition);
+      }
+    } catch (const Error&) {
+      // Too few points after pre-processing (a sliver): nothing to hypothesise.
+    }
+    result.timing.recognise += watch.WallMs();
+    if (cluster_results[cluster].empty()) cluster_results[cluster] = recognition;
+    int taken = 0;
+    for (size_t s = 0; s < recognition.suggestions.size() && taken < options.hypotheses_per_cluster;
+         ++s) {
+      const Suggestion& suggestion = recognition.suggestions[s];
+      if (!suggestion.posed || suggestion.score < options.min_hypothesis_score) continue;
+      Hypothesis h;
+      h.cluster = cluster;
+      h.recognition = recognition;
+      std::swap(h.recognition.suggestions[0], h.recognition.suggestions[s]);
+      if (s != 0) h.recognition.recognised = suggestion.score >= options.recognition.assembly.min_score;
+      if (options.snap_to_plane && plane.found) {
+        Suggestion& front = h.recognition.suggestions[0];
+        const PointCloud& surface = ModelSurface(front.model, options.model_leaf);
+        const Eigen::Matrix3f rotation = front.cam_from_model.rotation.cast<float>();
+        const Eigen::Vector3f translation = front.cam_from_model.translation.cast<float>();
+        float lowest = std::numeric_limits<float>::max();
+        for (const Eigen::Vector3f& p : surface.points) {
+          lowest = std::min(lowest, plane.Height(rotation * p + translation));
+        }
+        // Floating above the table or sunk into it: not a resting object.
+        if (!std::isfinite(lowest) || std::abs(lowest) > options.max_float) continue;
+        if (std::abs(lowest) <= options.max_snap) {
+          front.cam_from_model.translation -= static_cast<double>(lowest) * plane.normal.cast<double>();
+          h.snap = -lowest;
+        }
+      }
+      if (options.snap_to_plane && plane.found && options.flip_hypotheses) {
+        // The same hypothesis turned upside down (half a turn about a horizontal axis
+        // through its centre), put down on the table: objects whose visible side looks
+        // alike both ways up (a bottle with its top cut off by the image border) are then
+        // decided by the data and, on a tie, by the lower centre of mass (a resting object
+        // rests stably).
+        Hypothesis flipped = h;
+        Suggestion& f = flipped.recognition.suggestions[0];
+        const PointCloud& surface = ModelSurface(f.model, options.model_leaf);
+        const Eigen::Vector3d centre = f.cam_from_model * database_.model(f.model).center;
+        Eigen::Vector3d axis = Eigen::Vector3d::UnitX() -
+                               plane.normal.cast<double>() * plane.normal.cast<double>().x();
+        axis.normalize();
+        const Eigen::Matrix3d turn = Eigen::AngleAxisd(M_PI, axis).toRotationMatrix();
+        f.cam_from_model.rotation = turn * f.cam_from_model.rotation;
+        f.cam_from_model.translation = turn * (f.cam_from_model.translation - centre) + centre;
+        const Eigen::Matrix3f rotation = f.cam_from_model.rotation.cast<float>();
+        const Eigen::Vector3f translation = f.cam_from_model.translation.cast<float>();
+        float lowest = std::numeric_limits<float>::max();
+        for (const Eigen::Vector3f& p : surface.points) {
+          lowest = std::min(lowest, plane.Height(rotation * p + translation));
+        }
+        if (std::isfinite(lowest) && std::abs(lowest) <= options.max_float) {
+          f.cam_from_model.translation -= static_cast<double>(lowest) * plane.normal.cast<double>();
+          flipped.snap = -lowest;
+          flipped.flipped = true;
+          hypotheses.push_back(std::move(flipped));
+        }
+      }
+      hypotheses.push_back(std::move(h));
+      ++taken;
+    }
+  };
+  for (size_t c = 0; c < clusters.size(); ++c) recognise(static_cast<int>(c), clusters[c].cloud);
+
+  auto verify = [&]() {
+    const Stopwatch watch;
+    std::vector<SceneHypothesis> scene_hypotheses;
+    for (const Hypothesis& h : hypotheses) {
+      const Suggestion& s = h.recognition.suggestions[0];
+      const PointCloud& surface = ModelSurface(s.model, options.model_leaf);
+      const double prior =
+          plane.found ? options.stability_weight *
+                            std::max(0.0, CentreOfMassHeight(surface, s.cam_from_model, plane,
+                                                             database_.model(s.model).diameter))
+                      : 0.0;
+      scene_hypotheses.push_back({&surface, s.cam_from_model, prior});
+    }
+    // The segmentation cut everything below min_height (+ the plane noise) away: model
+    // points there have nothing to fit.
+    const float cut = static_cast<float>(options.segmentation.min_height +
+                                         options.segmentation.plane_distance);
+    std::vector<HypothesisEvidence> evidence = VerifyHypotheses(
+        scene.points, cloud, scene_hypotheses, options.verification,
+        [&plane, cut](const Eigen::Vector3f& p) { return plane.found && plane.Height(p) < cut; });
+    result.timing.verify += watch.WallMs();
+    return evidence;
+  };
+  std::vector<HypothesisEvidence> evidence = verify();
+
+  // Remainders: clusters the accepted hypotheses leave largely unexplained.
+  auto explained_mask = [&]() {
+    std::vector<uint8_t> explained(scene.points.size(), 0);
+    for (const HypothesisEvidence& e : evidence) {
+      if (!e.accepted) continue;
+      for (const int j : e.explained) explained[j] = 1;
+    }
+    return explained;
+  };
+  if (options.remainder_fraction > 0) {
+    const std::vector<uint8_t> explained = explained_mask();
+    std::vector<int> cluster_thinned(clusters.size(), 0), cluster_left(clusters.size(), 0);
+    for (size_t j = 0; j < scene.points.size(); ++j) {
+      ++cluster_thinned[scene.cluster_of[j]];
+      if (!explained[j]) ++cluster_left[scene.cluster_of[j]];
+    }
+    bool added = false;
+    for (size_t c = 0; c < clusters.size(); ++c) {
+      bool any_accepted = false;
+      for (size_t h = 0; h < hypotheses.size(); ++h) {
+        any_accepted |= evidence[h].accepted && hypotheses[h].cluster == static_cast<int>(c);
+      }
+      if (!any_accepted) continue;  // nothing explained: the whole cluster was tried
+      if (cluster_left[c] < options.remainder_fraction * cluster_thinned[c]) continue;
+      PointCloud remainder;
+      for (const int i : clusters[c].indices) {
+        if (!explained[scene.thinned_of_input[i]]) remainder.points.push_back(cloud.points[i]);
+      }
+      if (static_cast<int>(remainder.size()) < options.segmentation.min_cluster_points) continue;
+      const size_t before = hypotheses.size();
+      recognise(static_cast<int>(c), remainder);
+      added |= hypotheses.size() > before;
+    }
+    if (added) evidence = verify();
+  }
+  result.hypotheses = static_cast<int>(hypotheses.size());
+
+  // Objects: the accepted hypotheses with their segments.
+  const std::vector<uint8_t> explained = explained_mask();
+  std::vector<int> owner(scene.points.size(), -1);
+  for (size_t h = 0; h < hypotheses.size(); ++h) {
+    if (!evidence[h].accepted) continue;
+    for (const int j : evidence[h].explained) {
+      if (owner[j] < 0) owner[j] = static_cast<int>(h);
+    }
+  }
+  std::vector<int> object_of_hypothesis(hypotheses.size(), -1);
+  for (size_t h = 0; h < hypotheses.size(); ++h) {
+    if (!evidence[h].accepted) continue;
+    RecognisedObject object;
+    object.recognition = std::move(hypotheses[h].recognition);
+    object.recognition.recognised = true;
+    object.cluster = hypotheses[h].cluster;
+    object.snap_m = hypotheses[h].snap;
+    object.visible_fraction = evidence[h].visible_fraction;
+    object.evidence = std::move(evidence[h]);
+    object_of_hypothesis[h] = static_cast<int>(result.objects.size());
+    result.objects.push_back(std::move(object));
+  }
+  std::vector<std::vector<int>> left(clusters.size());
+  for (size_t c = 0; c < clusters.size(); ++c) {
+    for (const int i : clusters[c].indices) {
+      const int j = scene.thinned_of_input[i];
+      if (owner[j] >= 0) {
+        result.objects[object_of_hypothesis[owner[j]]].indices.push_back(i);
+      } else {
+        left[c].push_back(i);
+      }
+    }
+  }
+  // Unknown: a cluster nothing explains, or a remainder large enough to be an object.
+  for (size_t c = 0; c < clusters.size(); ++c) {
+    if (static_cast<int>(left[c].size()) < options.segmentation.min_cluster_points) continue;
+    bool any = false;
+    for (const RecognisedObject& o : result.objects) any |= o.cluster == static_cast<int>(c);
+    if (any && left[c].size() < options.remainder_fraction * clusters[c].indices.size()) continue;
+    UnknownObject unknown;
+    unknown.cluster = static_cast<int>(c);
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    for (const int i : left[c]) sum += cloud.points[i].cast<double>();
+    unknown.centroid = (sum / static_cast<double>(left[c].size())).cast<float>();
+    unknown.indices = std::move(left[c]);
+    if (!any && !cluster_results[c].empty()) {
+      unknown.guess_class = cluster_results[c].best().class_name;
+      unknown.guess_model = cluster_results[c].best().model_name;
+      unknown.guess_score = cluster_results[c].best().score;
+    }
+    result.unknown.push_back(std::move(unknown));
+  }
+  std::stable_sort(result.objects.begin(), result.objects.end(),
+                   [](const RecognisedObject& a, const RecognisedObject& b) {
+                     return a.best().score > b.best().score;
+                   });
+  result.timing.total = total.WallMs();
+  return result;
+}
+
+std::string SceneRecognitionResultToJson(const SceneRecognitionResult& result) {
+  nlohmann::json j;
+  if (!result.objects.empty()) {
+    j = nlohmann::json::parse(RecognitionResultToJson(result.objects.front().recognition));
+  } else {
+    j["recognised"] = false;
+  }
+  nlohmann::json objects = nlohmann::json::array();
+  for (const RecognisedObject& object : result.objects) {
+    nlohmann::json o = nlohmann::json::parse(RecognitionResultToJson(object.recognition));
+    o["points"] = object.indices.size();
+    o["visible_fraction"] = object.visible_fraction;
+    o["verified"] = object.verified;
+    o["cluster"] = object.cluster;
+    o["snap_m"] = object.snap_m;
+    o["model_fit_scene"] = object.evidence.model_fit;
+    o["local_explained"] = object.evidence.local_explained;
+    objects.push_back(std::move(o));
+  }
+  j["objects"] = std::move(objects);
+  nlohmann::json unknown = nlohmann::json::array();
+  for (const UnknownObject& u : result.unknown) {
+    nlohmann::json o = {{"points", u.indices.size()},
+                        {"cluster", u.cluster},
+                        {"centroid", {u.centroid.x(), u.centroid.y(), u.centroid.z()}}};
+    if (!u.guess_model.empty()) {
+      o["guess"] = {{"class", u.guess_class}, {"model", u.guess_model}, {"score", u.guess_score}};
+    }
+    unknown.push_back(std::move(o));
+  }
+  j["unknown"] = std::move(unknown);
+  const TablePlane& plane = result.segmentation.plane;
+  j["table"] = {{"found", plane.found},
+                {"normal", {plane.normal.x(), plane.normal.y(), plane.normal.z()}},
+                {"offset_m", plane.offset},
+                {"inliers", plane.inliers}};
+  if (!result.segmentation.message.empty()) j["table"]["message"] = result.segmentation.message;
+  j["clusters"] = result.segmentation.clusters.size();
+  j["hypotheses"] = result.hypotheses;
+  j["scene_ms"] = {{"segment", result.timing.segment},
+                   {"recognise", result.timing.recognise},
+                   {"verify", result.timing.verify},
+                   {"total", result.timing.total}};
+  return j.dump();
+}
+
+std::string SceneBriefReport(const SceneRecognitionResult& result) {
+  std::string report;
+  const TableSegmentation& seg = result.segmentation;
+  if (!seg.plane.found || seg.clusters.empty()) {
+    report += seg.message + "\n";
+  } else {
+    report += fmt::format("table: {} plane points, {} cluster(s), {} hypotheses\n",
+                          seg.plane.inliers, seg.clusters.size(), result.hypotheses);
+  }
+  for (size_t i = 0; i < result.objects.size(); ++i) {
+    const RecognisedObject& o = result.objects[i];
+    const Suggestion& s = o.best();
+    report += fmt::format("{}. {:<12} {:<20} score {:.3f}  {} points  t = ({:.3f}, {:.3f}, "
+                          "{:.3f}) m\n",
+                          i + 1, s.class_name, s.model_name, s.score, o.indices.size(),
+                          s.cam_from_model.translation.x(), s.cam_from_model.translation.y(),
+                          s.cam_from_model.translation.z());
+  }
+  for (const UnknownObject& u : result.unknown) {
+    report += fmt::format("unknown object: {} points at ({:.3f}, {:.3f}, {:.3f}) m{}\n",
+                          u.indices.size(), u.centroid.x(), u.centroid.y(), u.centroid.z(),
+                          u.guess_model.empty()
+                              ? std::string()
+                              : fmt::format(" (nearest {} {}, rejected)", u.guess_class,
+                                            u.guess_model));
+  }
+  report += fmt::format("times: segment {:.1f} ms, recognise {:.1f} ms, verify {:.1f} ms, total "
+                        "{:.1f} ms",
+                        result.timing.segment, result.timing.recognise, result.timing.verify,
+                        result.timing.total);
+  return report;
+}
+
+}  // namespace sope

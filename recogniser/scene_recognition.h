@@ -1,0 +1,135 @@
+// Recognition of every object on a table (issue 12): segment the scan into the table plane
+// and the clusters above it (recogniser/segmentation.h), recognise each cluster with the
+// single-object pipeline (recogniser/recogniser.h, several posed hypotheses per cluster),
+// put each hypothesis down on the table (the plane as a prior: the model's lowest point
+// onto the plane when it is within max_snap of it), and verify all hypotheses of the scene
+// together (recogniser/scene_verification.h). A cluster whose points an accepted
+// hypothesis leaves largely unexplained (two touching objects clustered together) is
+// recognised again on its unexplained remainder, once. Clusters nothing explains are
+// reported as unknown objects, not as their nearest model.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "core/point_cloud.h"
+#include "recogniser/database.h"
+#include "recogniser/recogniser.h"
+#include "recogniser/scene_verification.h"
+#include "recogniser/segmentation.h"
+
+namespace sope {
+
+struct SceneRecognitionOptions {
+  TableSegmentationOptions segmentation;
+  RecognitionOptions recognition;  // per cluster
+  SceneVerificationOptions verification;
+  // Posed suggestions of each cluster that become scene hypotheses, and the least
+  // recognition (alignment) score they need.
+  int hypotheses_per_cluster = 3;
+  double min_hypothesis_score = 0.15;
+  // The plane prior: shift each hypothesis along the table normal so that its lowest model
+  // point rests on the plane, when it is within max_snap metres of it (false: off).
+  // Tabletop objects rest on the table; ICP alone can slide a hypothesis along a
+  // featureless direction (a bottle whose top is outside the image slid along its axis).
+  // A hypothesis whose lowest point is more than max_float metres above or below the plane
+  // does not rest on the table and is dropped (with snap_to_plane and a table found). A
+  // large snap (an object cut by the image border, slid along its axis) is then judged by
+  // the scene verification like any hypothesis.
+  bool snap_to_plane = true;
+  double max_snap = 0.08;
+  double max_float = 0.08;
+  // Each hypothesis also upside down (half a turn about a horizontal axis, put down on
+  // the table), and the stability prior of the verification: a hypothesis's gain loses
+  // stability_weight × (height of its centre of mass above the table / its diameter) of
+  // its explained points — of two that explain the scene alike, the lower one wins.
+  bool flip_hypotheses = true;
+  double stability_weight = 0.2;
+  // Clusters of more points are evenly subsampled to this many before recognition (the
+  // recogniser thins to its 4 mm voxel leaf anyway; a dense scan has ~10 points per voxel).
+  int max_recognition_points = 20000;
+  // A cluster whose accepted hypotheses leave at least this fraction (and
+  // segmentation.min_cluster_points raw points) unexplained is recognised again on the
+  // remainder (0: never).
+  double remainder_fraction = 0.3;
+  // Voxel leaf of the scene points the verification explains, and of the model surface
+  // samples (union of the model's database views), metres.
+  double scene_leaf = 0.003;
+  double model_leaf = 0.003;
+  void Check() const;  // throws sope::Error naming the invalid value
+};
+
+struct RecognisedObject {
+  // The cluster's recognition with the accepted hypothesis first (its pose put down on
+  // the table); the other suggestions are the cluster's other candidates.
+  RecognitionResult recognition;
+  int cluster = -1;        // into SceneRecognitionResult::segmentation.clusters
+  std::vector<int> indices;  // input cloud points it explains (its segment), increasing
+  double visible_fraction = 0.0;  // of its camera-facing surface, fitting scene points
+  double snap_m = 0.0;     // the shift along the table normal the plane prior applied
+  HypothesisEvidence evidence;
+  bool verified = true;    // accepted by the scene verification
+  const Suggestion& best() const { return recognition.best(); }
+};
+
+struct UnknownObject {
+  int cluster = -1;
+  std::vector<int> indices;  // input cloud points no accepted hypothesis explains
+  Eigen::Vector3f centroid = Eigen::Vector3f::Zero();
+  // The rejected best guess (empty when the recogniser refused the cluster or gave none).
+  std::string guess_class, guess_model;
+  double guess_score = 0.0;
+};
+
+struct SceneTimings {  // milliseconds, wall clock
+  double segment = 0.0;
+  double recognise = 0.0;  // every cluster (and remainder) through Recogniser::Recognise
+  double verify = 0.0;
+  double total = 0.0;
+};
+
+struct SceneRecognitionResult {
+  TableSegmentation segmentation;
+  std::vector<RecognisedObject> objects;  // verified, best score first
+  std::vector<UnknownObject> unknown;     // clusters (or remainders) nothing explains
+  int hypotheses = 0;                     // verified together
+  SceneTimings timing;
+  bool empty() const { return objects.empty(); }
+};
+
+// One JSON line (DESIGN.md "Recognition result"): the best object's recognition result at
+// the top level (RecognitionResultToJson; no object: "recognised": false, no class), and
+// "objects": [each the per-object result fields plus "points", "visible_fraction",
+// "verified", "cluster", "snap_m"], "unknown": [{"points", "centroid", "guess"}], "table":
+// {"found", "normal", "offset_m", "inliers"}, "clusters", and the scene's timings
+// ("scene_ms": segment, recognise, verify, total).
+std::string SceneRecognitionResultToJson(const SceneRecognitionResult& result);
+
+// A few lines: each object (class, model, score, points, centre) and the unknown ones.
+std::string SceneBriefReport(const SceneRecognitionResult& result);
+
+class SceneRecogniser {
+ public:
+  // Keeps a reference: `database` must outlive it.
+  explicit SceneRecogniser(const Database& database);
+  ~SceneRecogniser();
+
+  // Throws sope::Error on invalid options and on the clouds SegmentTable refuses (a
+  // non-finite point, fewer than 3 points); no table or nothing on it is an empty result.
+  // Safe to call concurrently.
+  SceneRecognitionResult Recognise(const PointCloud& cloud,
+                                   const SceneRecognitionOptions& options = {}) const;
+
+  // The model's surface sample (union of its database views, voxel-thinned at `leaf`,
+  // model frame, with normals); built once per model and leaf.
+  const PointCloud& ModelSurface(int model, double leaf) const;
+
+ private:
+  struct Cache;
+  const Database& database_;
+  Recogniser recogniser_;
+  std::unique_ptr<Cache> cache_;
+};
+
+}  // namespace sope

@@ -1,0 +1,191 @@
+#include "recogniser/scene_verification.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "core/error.h"
+#include "recogniser/pose.h"
+
+namespace sope {
+namespace {
+
+// Nearest observed depth (z) per cell of normalised image coordinates: the surface the
+// camera saw along each ray.
+class DepthGrid {
+ public:
+  DepthGrid(const PointCloud& observed, double cell) : inv_cell_(1.0 / cell) {
+    float u_min = std::numeric_limits<float>::max(), v_min = u_min, u_max = -u_min, v_max = -u_min;
+    for (const Eigen::Vector3f& p : observed.points) {
+      if (!(p.z() > 0.0f)) continue;
+      u_min = std::min(u_min, p.x() / p.z());
+      u_max = std::max(u_max, p.x() / p.z());
+      v_min = std::min(v_min, p.y() / p.z());
+      v_max = std::max(v_max, p.y() / p.z());
+    }
+    if (u_min > u_max) return;
+    u0_ = u_min;
+    v0_ = v_min;
+    width_ = static_cast<int>((u_max - u_min) * inv_cell_) + 1;
+    height_ = static_cast<int>((v_max - v_min) * inv_cell_) + 1;
+    SOPE_CHECK(static_cast<int64_t>(width_) * height_ < (int64_t{1} << 26),
+               "scene verification: field of view too wide for a {} depth grid", cell);
+    depth_.assign(static_cast<size_t>(width_) * height_, std::numeric_limits<float>::infinity());
+    for (const Eigen::Vector3f& p : observed.points) {
+      if (!(p.z() > 0.0f)) continue;
+      float& d = depth_[Index(p)];
+      d = std::min(d, p.z());
+    }
+  }
+  // Observed depth on the ray of `p`; +∞ when nothing was seen there or outside the grid.
+  float At(const Eigen::Vector3f& p) const {
+    if (depth_.empty() || !(p.z() > 0.0f)) return std::numeric_limits<float>::infinity();
+    const int cx = static_cast<int>(std::floor((p.x() / p.z() - u0_) * inv_cell_));
+    const int cy = static_cast<int>(std::floor((p.y() / p.z() - v0_) * inv_cell_));
+    if (cx < 0 || cy < 0 || cx >= width_ || cy >= height_) {
+      return std::numeric_limits<float>::infinity();
+    }
+    return depth_[static_cast<size_t>(cy) * width_ + cx];
+  }
+
+ private:
+  size_t Index(const Eigen::Vector3f& p) const {
+    const int cx = std::clamp(static_cast<int>((p.x() / p.z() - u0_) * inv_cell_), 0, width_ - 1);
+    const int cy = std::clamp(static_cast<int>((p.y() / p.z() - v0_) * inv_cell_), 0, height_ - 1);
+    return static_cast<size_t>(cy) * width_ + cx;
+  }
+  double inv_cell_;
+  float u0_ = 0, v0_ = 0;
+  int width_ = 0, height_ = 0;
+  std::vector<float> depth_;
+};
+
+}  // namespace
+
+void SceneVerificationOptions::Check() const {
+  SOPE_CHECK(inlier_distance > 0, "scene verification: inlier distance must be > 0 m, got {}",
+             inlier_distance);
+  SOPE_CHECK(violation_distance > 0,
+             "scene verification: violation distance must be > 0 m, got {}", violation_distance);
+  SOPE_CHECK(ray_cell > 0, "scene verification: ray cell must be > 0, got {}", ray_cell);
+  for (const double fraction : {min_model_fit, min_local_explained, max_violation_fraction,
+                                min_gain_fraction}) {
+    SOPE_CHECK(fraction >= 0.0 && fraction <= 1.0,
+               "scene verification: fractions must lie in [0, 1], got {}", fraction);
+  }
+  SOPE_CHECK(duplicate_weight >= 0 && violation_weight >= 0,
+             "scene verification: weights must be ≥ 0, got {} and {}", duplicate_weight,
+             violation_weight);
+  SOPE_CHECK(box_margin >= 0, "scene verification: box margin must be ≥ 0 m, got {}",
+             box_margin);
+}
+
+std::vector<HypothesisEvidence> VerifyHypotheses(
+    const PointCloud& scene, const PointCloud& observed,
+    const std::vector<SceneHypothesis>& hypotheses, const SceneVerificationOptions& options,
+    const std::function<bool(const Eigen::Vector3f&)>& ignore) {
+  options.Check();
+  const DepthGrid depth(observed, options.ray_cell);
+  const float inlier2 = static_cast<float>(options.inlier_distance * options.inlier_distance);
+  const float violation = static_cast<float>(options.violation_distance);
+  std::vector<HypothesisEvidence> out(hypotheses.size());
+
+  for (size_t h = 0; h < hypotheses.size(); ++h) {
+    const SceneHypothesis& hypothesis = hypotheses[h];
+    SOPE_CHECK(hypothesis.model_cloud != nullptr && hypothesis.model_cloud->HasNormals(),
+               "scene verification: hypothesis {} has no model cloud with normals", h);
+    const PointCloud& model = *hypothesis.model_cloud;
+    const Eigen::Matrix3f rotation = hypothesis.cam_from_model.rotation.cast<float>();
+    const Eigen::Vector3f translation = hypothesis.cam_from_model.translation.cast<float>();
+    HypothesisEvidence& e = out[h];
+
+    // Model points facing the camera, classified along their rays.
+    std::vector<Eigen::Vector3f> visible_points;
+    Eigen::Vector3f box_min = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+    Eigen::Vector3f box_max = -box_min;
+    for (size_t i = 0; i < model.size(); ++i) {
+      box_min = box_min.cwiseMin(model.points[i]);
+      box_max = box_max.cwiseMax(model.points[i]);
+      const Eigen::Vector3f p = rotation * model.points[i] + translation;
+      const Eigen::Vector3f n = rotation * model.normals[i];
+      if (!(p.z() > 0.0f) || n.dot(p) >= 0.0f) continue;
+      if (ignore && ignore(p)) continue;
+      ++e.visible;
+      const float seen = depth.At(p);
+      if (!std::isfinite(seen)) {
+        ++e.empty;
+      } else if (seen > p.z() + violation) {
+        ++e.violations;
+      } else if (seen < p.z() - violation) {
+        ++e.occluded;
+      } else {
+        visible_points.push_back(p);
+      }
+    }
+    // Scene points near the model's visible surface: explained; model points near the
+    // scene: fitting.
+    const ProjectiveGrid model_grid(visible_points, {}, static_cast<float>(options.ray_cell));
+    const Eigen::Vector3f margin = Eigen::Vector3f::Constant(static_cast<float>(options.box_margin));
+    box_min -= margin;
+    box_max += margin;
+    const Eigen::Matrix3f model_from_cam = rotation.transpose();
+    std::vector<uint8_t> fits(visible_points.size(), 0);
+    for (size_t j = 0; j < scene.size(); ++j) {
+      const Eigen::Vector3f q = model_from_cam * (scene.points[j] - translation);
+      const bool in_box = (q.array() >= box_min.array()).all() && (q.array() <= box_max.array()).all();
+      if (in_box) ++e.local;
+      if (!in_box) continue;
+      float d2 = 0;
+      const int nearest =
+          model_grid.Nearest(scene.points[j], Eigen::Vector3f::Zero(), 0.0f, 1, inlier2, &d2);
+      if (nearest >= 0) {
+        e.explained.push_back(static_cast<int>(j));
+        fits[nearest] = 1;
+      }
+    }
+    // A visible point on observed depth without an explained scene point near it still
+    // fits when the scene (outside the box, e.g. a neighbour) has one: count it from the
+    // scene side only, as above, to stay symmetric with `explained`.
+    for (const uint8_t f : fits) e.fitting += f;
+    const int unoccluded = std::max(1, e.visible - e.occluded - e.empty);
+    e.model_fit = std::min(1.0, static_cast<double>(e.fitting) / unoccluded);
+    e.violation_fraction = static_cast<double>(e.violations) / unoccluded;
+    e.local_explained = e.local > 0 ? static_cast<double>(e.explained.size()) / e.local : 0.0;
+    e.visible_fraction = e.visible > 0 ? static_cast<double>(e.fitting) / e.visible : 0.0;
+    e.passes = e.model_fit >= options.min_model_fit &&
+               e.local_explained >= options.min_local_explained &&
+               e.violation_fraction <= options.max_violation_fraction && !e.explained.empty();
+  }
+
+  // Greedy global selection.
+  std::vector<uint8_t> taken(scene.size(), 0);
+  std::vector<uint8_t> done(hypotheses.size(), 0);
+  while (true) {
+    int best = -1;
+    double best_gain = 0.0;
+    int best_duplicates = 0;
+    for (size_t h = 0; h < hypotheses.size(); ++h) {
+      if (done[h] || !out[h].passes) continue;
+      int duplicates = 0;
+      for (const int j : out[h].explained) duplicates += taken[j];
+      const int fresh = static_cast<int>(out[h].explained.size()) - duplicates;
+      const double gain = fresh - options.duplicate_weight * duplicates -
+                          options.violation_weight * out[h].violations -
+                          hypotheses[h].prior_penalty * out[h].explained.size();
+      if (gain < options.min_gain_fraction * out[h].explained.size()) continue;
+      if (best < 0 || gain > best_gain) {
+        best = static_cast<int>(h);
+        best_gain = gain;
+        best_duplicates = duplicates;
+      }
+    }
+    if (best < 0) break;
+    done[best] = 1;
+    out[best].accepted = true;
+    out[best].duplicates = best_duplicates;
+    for (const int j : out[best].explained) taken[j] = 1;
+  }
+  return out;
+}
+
+}  // namespace sope

@@ -1,0 +1,92 @@
+// Scene-level hypothesis verification (issue 12), in the spirit of PCL's
+// GlobalHypothesesVerification (Aldoma et al., "A Global Hypotheses Verification Method
+// for 3D Object Recognition", ECCV 2012): the pose hypotheses of every cluster of a scan
+// are accepted or rejected together, so that
+//  - each scene point is explained at most once (a second hypothesis on the same points
+//    gains nothing and pays for the overlap),
+//  - free space is respected: a model point that would lie in front of the surface the
+//    camera saw along its ray (by more than violation_distance) is a violation — the
+//    camera would have seen it,
+//  - a hypothesis must fit: most of its visible, unoccluded model points on observed
+//    surface (model_fit) and most scene points inside its bounding box explained
+//    (local_explained) — an unknown object is left unexplained rather than named as the
+//    nearest model.
+// The selection is greedy (the global cost of Aldoma et al. minimised one hypothesis at a
+// time): among the hypotheses that pass the fit tests, repeatedly accept the one with the
+// largest gain = newly explained points − duplicate_weight · points already explained −
+// violation_weight · violations, while that gain is at least min_gain_fraction of its
+// explained points.
+#pragma once
+
+#include <functional>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "core/point_cloud.h"
+#include "core/rigid3d.h"
+
+namespace sope {
+
+struct SceneVerificationOptions {
+  // A scene point within this distance of a model point is explained (metres).
+  double inlier_distance = 0.004;
+  // A visible model point this far (metres, along z) in front of the observed surface on
+  // its ray is a free-space violation; this far behind it, occluded.
+  double violation_distance = 0.008;
+  // Cell of the free-space depth grid, normalised image units (x/z, y/z): ≈ 2 mm at 0.6 m.
+  double ray_cell = 0.0035;
+  // Acceptance tests.
+  double min_model_fit = 0.6;
+  double min_local_explained = 0.6;
+  double max_violation_fraction = 0.12;
+  // Gain weights and the minimum gain as a fraction of the hypothesis's explained points.
+  double duplicate_weight = 1.0;
+  double violation_weight = 2.0;
+  double min_gain_fraction = 0.5;
+  // Scene points inside the model's bounding box grown by this margin count as its
+  // neighbourhood for local_explained (metres).
+  double box_margin = 0.004;
+  void Check() const;  // throws sope::Error naming the invalid value
+};
+
+// One pose hypothesis: a model surface sample (model frame, metres, unit normals — e.g.
+// the union of its database views) at cam_from_model.
+struct SceneHypothesis {
+  const PointCloud* model_cloud = nullptr;
+  Rigid3d cam_from_model;
+  // A prior against the hypothesis, as a fraction of its explained points subtracted from
+  // its gain (e.g. a resting pose with a high centre of mass): between two hypotheses that
+  // explain the scene about equally well, the one with the smaller prior wins.
+  double prior_penalty = 0.0;
+};
+
+struct HypothesisEvidence {
+  int visible = 0;     // model points facing the camera
+  int fitting = 0;     // … with a scene point within inlier_distance
+  int violations = 0;  // … in front of the observed surface
+  int occluded = 0;    // … behind it
+  int empty = 0;       // … on a ray nothing was observed on
+  int local = 0;       // scene points in the model's bounding box
+  std::vector<int> explained;  // scene points within inlier_distance of the model, sorted
+  double model_fit = 0.0;           // fitting / (visible − occluded − empty)
+  double local_explained = 0.0;     // |explained ∩ box| / local
+  double violation_fraction = 0.0;  // violations / (visible − occluded − empty)
+  double visible_fraction = 0.0;    // fitting / visible: how much of the seen side was seen
+  bool passes = false;              // the three fit tests
+  bool accepted = false;            // chosen by the global selection
+  int duplicates = 0;               // explained points an earlier accepted one had
+};
+
+// Verifies `hypotheses` against `scene` (the points to explain: what is above the table,
+// camera frame) and `observed` (everything the camera saw, for free space; may be the
+// same cloud). Returns one evidence per hypothesis, in order. Deterministic.
+// `ignore` (optional): model points (camera frame) it returns true for are left out of
+// the model-side tests — e.g. the band just above the table, which the segmentation cut
+// away from `scene` (a flat object would otherwise seem not to fit).
+std::vector<HypothesisEvidence> VerifyHypotheses(
+    const PointCloud& scene, const PointCloud& observed,
+    const std::vector<SceneHypothesis>& hypotheses, const SceneVerificationOptions& options = {},
+    const std::function<bool(const Eigen::Vector3f&)>& ignore = {});
+
+}  // namespace sope

@@ -1,0 +1,257 @@
+#include "recogniser/segmentation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <unordered_map>
+
+#include <Eigen/Eigenvalues>
+#include <fmt/format.h>
+#include <pcl/ModelCoefficients.h>
+#include <pcl/search/kdtree.h>
+#include <pcl/segmentation/extract_clusters.h>
+#include <pcl/segmentation/sac_segmentation.h>
+
+#include "core/error.h"
+#include "core/stopwatch.h"
+#include "recogniser/pcl_convert.h"
+
+namespace sope {
+namespace {
+
+// Least-squares plane of `points` (centroid + smallest eigenvector), normal towards the
+// origin (the camera).
+bool FitPlane(const std::vector<Eigen::Vector3f>& points, const std::vector<int>& indices,
+              TablePlane* plane) {
+  if (indices.size() < 3) return false;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (int i : indices) mean += points[i].cast<double>();
+  mean /= static_cast<double>(indices.size());
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+  for (int i : indices) {
+    const Eigen::Vector3d d = points[i].cast<double>() - mean;
+    covariance += d * d.transpose();
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
+  Eigen::Vector3d normal = solver.eigenvectors().col(0);
+  if (!normal.allFinite()) return false;
+  double offset = -normal.dot(mean);
+  if (offset < 0) {
+    normal = -normal;
+    offset = -offset;
+  }
+  plane->normal = normal.normalized().cast<float>();
+  plane->offset = static_cast<float>(offset);
+  return true;
+}
+
+}  // namespace
+
+void TableSegmentationOptions::Check() const {
+  SOPE_CHECK(std::isfinite(min_range) && min_range >= 0.0,
+             "table segmentation: min range must be ≥ 0 m, got {}", min_range);
+  SOPE_CHECK(std::isfinite(max_range) && max_range > min_range,
+             "table segmentation: max range must exceed the min range ({} m), got {}",
+             min_range, max_range);
+  SOPE_CHECK(plane_distance > 0.0, "table segmentation: plane distance must be > 0 m, got {}",
+             plane_distance);
+  SOPE_CHECK(plane_iterations >= 1, "table segmentation: plane iterations must be ≥ 1, got {}",
+             plane_iterations);
+  SOPE_CHECK(plane_samples >= 3, "table segmentation: plane samples must be ≥ 3, got {}",
+             plane_samples);
+  SOPE_CHECK(min_plane_fraction >= 0.0 && min_plane_fraction <= 1.0,
+             "table segmentation: min plane fraction must be in [0, 1], got {}",
+             min_plane_fraction);
+  SOPE_CHECK(min_height >= 0.0 && max_height > min_height,
+             "table segmentation: height band must satisfy 0 ≤ min < max, got [{}, {}] m",
+             min_height, max_height);
+  SOPE_CHECK(cluster_leaf > 0.0, "table segmentation: cluster leaf must be > 0 m, got {}",
+             cluster_leaf);
+  SOPE_CHECK(cluster_tolerance >= 0.0,
+             "table segmentation: cluster tolerance must be ≥ 0 m, got {}", cluster_tolerance);
+  SOPE_CHECK(max_points >= 3, "table segmentation: max points must be ≥ 3, got {}", max_points);
+  SOPE_CHECK(min_cluster_points >= 1,
+             "table segmentation: min cluster points must be ≥ 1, got {}", min_cluster_points);
+}
+
+TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationOptions& options) {
+  options.Check();
+  cloud.Check();
+  const Stopwatch watch;
+  SOPE_CHECK(cloud.size() >= 3,
+             "table segmentation: the cloud has {} point(s); a table plane needs at least 3",
+             cloud.size());
+  const size_t finite = cloud.CountFinite();
+  SOPE_CHECK(finite == cloud.size(),
+             "table segmentation: the cloud has {} non-finite point(s) (NaN or infinite "
+             "coordinates) of {}",
+             cloud.size() - finite, cloud.size());
+  TableSegmentation out;
+
+  // Points in the range band.
+  const double lo2 = options.min_range * options.min_range;
+  const double hi2 = options.max_range * options.max_range;
+  std::vector<int> band;
+  band.reserve(cloud.size());
+  size_t in_band = 0;
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    const double r2 = cloud.points[i].cast<double>().squaredNorm();
+    in_band += r2 >= lo2 && r2 <= hi2;
+  }
+  const size_t keep_every =
+      std::max<size_t>(1, (in_band + options.max_points - 1) / static_cast<size_t>(options.max_points));
+  for (size_t i = 0; i < cloud.size(); i += keep_every) {
+    const double r2 = cloud.points[i].cast<double>().squaredNorm();
+    if (r2 >= lo2 && r2 <= hi2) band.push_back(static_cast<int>(i));
+  }
+  out.finite_points = static_cast<int>(band.size());
+  if (band.size() < 3) {
+    out.message = fmt::format("no plane: {} point(s) in the range band [{}, {}] m", band.size(),
+                              options.min_range, options.max_range);
+    out.ms = watch.WallMs();
+    return out;
+  }
+
+  // 1. RANSAC on an even subsample, then least squares on every inlier.
+  const size_t stride =
+      std::max<size_t>(1, band.size() / static_cast<size_t>(options.plane_samples));
+  pcl::PointCloud<pcl::PointXYZ>::Ptr sample(new pcl::PointCloud<pcl::PointXYZ>);
+  for (size_t k = 0; k < band.size(); k += stride) {
+    const Eigen::Vector3f& p = cloud.points[band[k]];
+    sample->push_back(pcl::PointXYZ(p.x(), p.y(), p.z()));
+  }
+  pcl::SACSegmentation<pcl::PointXYZ> sac;
+  sac.setModelType(pcl::SACMODEL_PLANE);
+  sac.setMethodType(pcl::SAC_RANSAC);
+  sac.setDistanceThreshold(options.plane_distance);
+  sac.setMaxIterations(options.plane_iterations);
+  sac.setOptimizeCoefficients(false);
+  sac.setInputCloud(sample);
+  pcl::PointIndices sample_inliers;
+  pcl::ModelCoefficients coefficients;
+  sac.segment(sample_inliers, coefficients);
+  const size_t needed = static_cast<size_t>(std::ceil(options.min_plane_fraction * band.size()));
+  TablePlane plane;
+  if (coefficients.values.size() == 4) {
+    Eigen::Vector3f normal(coefficients.values[0], coefficients.values[1],
+                           coefficients.values[2]);
+    const float norm = normal.norm();
+    if (norm > 0 && std::isfinite(norm)) {
+      plane.normal = normal / norm;
+      plane.offset = coefficients.values[3] / norm;
+      std::vector<int> inliers;
+      for (int round = 0; round < 2; ++round) {  // refit on all raw inliers, twice
+        inliers.clear();
+        for (int i : band) {
+          if (std::abs(plane.Height(cloud.points[i])) <= options.plane_distance) {
+            inliers.push_back(i);
+          }
+        }
+        if (!FitPlane(cloud.points, inliers, &plane)) break;
+      }
+      plane.inliers = static_cast<int>(inliers.size());
+      plane.found = inliers.size() >= std::max<size_t>(needed, 3);
+    }
+  }
+  out.plane = plane;
+  if (!plane.found) {
+    out.message = fmt::format("no plane: {} of {} points on the best plane (at least {} needed)",
+                              plane.inliers, band.size(), needed);
+    out.ms = watch.WallMs();
+    return out;
+  }
+  if (plane.offset < 0) {  // cannot happen after FitPlane, kept as an invariant
+    plane.normal = -plane.normal;
+    plane.offset = -plane.offset;
+  }
+
+  // 2. Points in the height band, voxel-thinned (each raw point keeps its voxel).
+  std::vector<int> above;
+  for (int i : band) {
+    const float h = plane.Height(cloud.points[i]);
+    if (h >= options.min_height && h <= options.max_height) above.push_back(i);
+  }
+  out.above_points = static_cast<int>(above.size());
+  if (static_cast<int>(above.size()) < options.min_cluster_points) {
+    out.message = fmt::format("nothing on the table: {} point(s) {}–{} m above the plane",
+                              above.size(), options.min_height, options.max_height);
+    out.ms = watch.WallMs();
+    return out;
+  }
+  const float inv_leaf = static_cast<float>(1.0 / options.cluster_leaf);
+  std::unordered_map<uint64_t, int> voxel_of_key;
+  voxel_of_key.reserve(above.size() / 4);
+  std::vector<int> voxel_of_point(above.size());
+  std::vector<Eigen::Vector3d> voxel_sum;
+  std::vector<int> voxel_count;
+  for (size_t k = 0; k < above.size(); ++k) {
+    const Eigen::Vector3f& p = cloud.points[above[k]];
+    const auto cx = static_cast<int64_t>(std::floor(p.x() * inv_leaf)) + (1 << 20);
+    const auto cy = static_cast<int64_t>(std::floor(p.y() * inv_leaf)) + (1 << 20);
+    const auto cz = static_cast<int64_t>(std::floor(p.z() * inv_leaf)) + (1 << 20);
+    const uint64_t key = (static_cast<uint64_t>(cx) << 42) ^ (static_cast<uint64_t>(cy) << 21) ^
+                         static_cast<uint64_t>(cz);
+    auto [it, inserted] = voxel_of_key.emplace(key, static_cast<int>(voxel_sum.size()));
+    if (inserted) {
+      voxel_sum.emplace_back(Eigen::Vector3d::Zero());
+      voxel_count.push_back(0);
+    }
+    voxel_of_point[k] = it->second;
+    voxel_sum[it->second] += p.cast<double>();
+    ++voxel_count[it->second];
+  }
+  pcl::PointCloud<pcl::PointXYZ>::Ptr thinned(new pcl::PointCloud<pcl::PointXYZ>);
+  thinned->reserve(voxel_sum.size());
+  for (size_t v = 0; v < voxel_sum.size(); ++v) {
+    const Eigen::Vector3f c = (voxel_sum[v] / voxel_count[v]).cast<float>();
+    thinned->push_back(pcl::PointXYZ(c.x(), c.y(), c.z()));
+  }
+
+  // 3. Euclidean clusters of the voxels.
+  const double tolerance =
+      options.cluster_tolerance > 0 ? options.cluster_tolerance : 2.5 * options.cluster_leaf;
+  pcl::search::KdTree<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
+  tree->setInputCloud(thinned);
+  pcl::EuclideanClusterExtraction<pcl::PointXYZ> extraction;
+  extraction.setClusterTolerance(tolerance);
+  extraction.setMinClusterSize(1);
+  extraction.setMaxClusterSize(std::numeric_limits<int>::max());
+  extraction.setSearchMethod(tree);
+  extraction.setInputCloud(thinned);
+  std::vector<pcl::PointIndices> voxel_clusters;
+  extraction.extract(voxel_clusters);
+  std::vector<int> cluster_of_voxel(voxel_sum.size(), -1);
+  for (size_t c = 0; c < voxel_clusters.size(); ++c) {
+    for (int v : voxel_clusters[c].indices) cluster_of_voxel[v] = static_cast<int>(c);
+  }
+  std::vector<ObjectCluster> clusters(voxel_clusters.size());
+  for (size_t k = 0; k < above.size(); ++k) {
+    const int c = cluster_of_voxel[voxel_of_point[k]];
+    if (c >= 0) clusters[c].indices.push_back(above[k]);
+  }
+  for (ObjectCluster& cluster : clusters) {
+    if (static_cast<int>(cluster.indices.size()) < options.min_cluster_points) continue;
+    std::sort(cluster.indices.begin(), cluster.indices.end());
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    cluster.cloud.points.reserve(cluster.indices.size());
+    for (int i : cluster.indices) {
+      cluster.cloud.points.push_back(cloud.points[i]);
+      if (cloud.HasColors()) cluster.cloud.colors.push_back(cloud.colors[i]);
+      sum += cloud.points[i].cast<double>();
+    }
+    cluster.centroid = (sum / static_cast<double>(cluster.indices.size())).cast<float>();
+    out.clusters.push_back(std::move(cluster));
+  }
+  std::stable_sort(out.clusters.begin(), out.clusters.end(),
+                   [](const ObjectCluster& a, const ObjectCluster& b) {
+                     return a.indices.size() > b.indices.size();
+                   });
+  if (out.clusters.empty()) {
+    out.message = fmt::format("nothing on the table: {} point(s) above the plane, no cluster of "
+                              "{} or more",
+                              above.size(), options.min_cluster_points);
+  }
+  out.ms = watch.WallMs();
+  return out;
+}
+
+}  // namespace sope
