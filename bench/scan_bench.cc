@@ -133,6 +133,35 @@ BENCHMARK(BM_Triangulate)
     ->Repetitions(5)
     ->ReportAggregatesOnly(true);
 
+// The table path on `threads` threads (wall clock: the CPU time counts only the main
+// thread), beside the single-threaded runs above.
+void BM_TriangulateThreads(benchmark::State& state) {
+  const Input& input = GetInput();
+  TriangulationOptions options;
+  options.method = state.range(0) == 1 ? TriangulationMethod::kLinear : TriangulationMethod::kMidpoint;
+  options.num_threads = static_cast<int>(state.range(1));
+  const bool one_axis = state.range(0) == 2;
+  const Triangulator triangulator(input.calibration, options);
+  const CorrespondenceMap& map = one_axis ? input.map_x : input.map_xy;
+  size_t points = 0;
+  for (auto _ : state) {
+    const TriangulationResult result = triangulator.Triangulate(map, cv::Mat());
+    points = result.cloud.size();
+    benchmark::DoNotOptimize(result.cloud.points.data());
+  }
+  state.SetLabel(fmt::format("{} tables, {} threads",
+                             one_axis ? "ray-plane (x only)" : ToString(options.method),
+                             options.num_threads));
+  state.counters["points"] = static_cast<double>(points);
+}
+BENCHMARK(BM_TriangulateThreads)
+    ->ArgsProduct({{0, 1, 2}, {1, 2}})
+    ->ArgNames({"method", "threads"})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Repetitions(5)
+    ->ReportAggregatesOnly(true);
+
 void BM_TriangulatorSetUp(benchmark::State& state) {
   const Input& input = GetInput();
   TriangulationOptions options;
@@ -204,6 +233,18 @@ void PrintSummary(const SummaryReporter& reporter) {
     fmt::print("  {:<22} {:>9.2f} {:>12.2f} {:>9.2f} {:>12.2f} {:>7.1f}x\n", names[method],
                exact.cpu_ms, exact.points / exact.cpu_ms * 1e-3, tables.cpu_ms,
                tables.points / tables.cpu_ms * 1e-3, exact.cpu_ms / tables.cpu_ms);
+  }
+  fmt::print("  wall clock (exact on 1 thread; tables on 1 and 2 threads):\n");
+  for (int method = 0; method < 3; ++method) {
+    const auto exact = reporter.Get(fmt::format("BM_Triangulate/method:{}/tables:0", method));
+    const auto one = reporter.Get(fmt::format("BM_TriangulateThreads/method:{}/threads:1", method));
+    const auto two = reporter.Get(fmt::format("BM_TriangulateThreads/method:{}/threads:2", method));
+    if (exact.real_ms <= 0.0 || one.real_ms <= 0.0 || two.real_ms <= 0.0) continue;
+    fmt::print("  {:<22} exact {:.2f} ms; tables 1 thread {:.2f} ms ({:.1f}x, {:.1f} Mpt/s), "
+               "2 threads {:.2f} ms ({:.1f}x, {:.1f} Mpt/s)\n",
+               names[method], exact.real_ms, one.real_ms, exact.real_ms / one.real_ms,
+               one.points / one.real_ms * 1e-3, two.real_ms, exact.real_ms / two.real_ms,
+               two.points / two.real_ms * 1e-3);
   }
   const auto batch = reporter.Get("BM_Decode");
   const auto last = reporter.Get("BM_DecodeIncremental/last_frame_only:1");

@@ -14,6 +14,20 @@ double MillisecondsSince(std::chrono::steady_clock::time_point start) {
       .count();
 }
 
+// Triangulates result->correspondences, coloured by the white frame (colour when
+// available, else `texture`).
+void Triangulate(const FrameSet& frames, const Triangulator& triangulator, const cv::Mat& texture,
+                 ScanResult* result) {
+  cv::Mat white = frames.white_color;
+  if (white.empty()) {
+    if (const auto index = frames.manifest.Find(FrameRole::kWhite)) white = frames.images[*index];
+  }
+  if (white.empty()) white = texture;
+  const auto start = std::chrono::steady_clock::now();
+  result->triangulation = triangulator.Triangulate(result->correspondences, white);
+  result->triangulate_ms = MillisecondsSince(start);
+}
+
 }  // namespace
 
 void CheckCalibrationMatchesFrames(const RigCalibration& calibration,
@@ -60,14 +74,17 @@ ScanResult ScanFrameSet(const FrameSet& frames, const Triangulator& triangulator
     result.correspondences = Decode(frames, decoder_options);
   }
   result.decode_ms = MillisecondsSince(start);
-  cv::Mat white = frames.white_color;
-  if (white.empty()) {
-    if (const auto index = frames.manifest.Find(FrameRole::kWhite)) white = frames.images[*index];
-  }
-  if (white.empty()) white = phase_images.texture;
-  start = std::chrono::steady_clock::now();
-  result.triangulation = triangulator.Triangulate(result.correspondences, white);
-  result.triangulate_ms = MillisecondsSince(start);
+  Triangulate(frames, triangulator, phase_images.texture, &result);
+  return result;
+}
+
+ScanResult ScanDecoded(const FrameSet& frames, CorrespondenceMap correspondences,
+                       double decode_ms, const Triangulator& triangulator) {
+  CheckCalibrationMatchesFrames(triangulator.calibration(), frames.manifest, "(given)");
+  ScanResult result;
+  result.correspondences = std::move(correspondences);
+  result.decode_ms = decode_ms;
+  Triangulate(frames, triangulator, cv::Mat(), &result);
   return result;
 }
 

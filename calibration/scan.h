@@ -43,4 +43,10 @@ ScanResult ScanFrameSet(const FrameSet& frames, const Triangulator& triangulator
 ScanResult ScanFrameSet(const FrameSet& frames, const RigCalibration& calibration,
                         const ScanOptions& options = {});
 
+// Triangulates a map of `frames` decoded already (by an IncrementalDecoder while the
+// frames were captured: the live loop); `decode_ms` is the decoding left after the last
+// frame, reported as ScanResult::decode_ms. The white frame colours the cloud.
+ScanResult ScanDecoded(const FrameSet& frames, CorrespondenceMap correspondences,
+                       double decode_ms, const Triangulator& triangulator);
+
 }  // namespace sope

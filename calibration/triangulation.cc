@@ -1,6 +1,8 @@
 #include "calibration/triangulation.h"
 
+#include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 
 #include <Eigen/Dense>
@@ -126,25 +128,6 @@ cv::Mat UndistortedGrid(const CameraModel& model) {
   return UndistortedGrid(model, 0, 0, model.width, model.height);
 }
 
-// Bilinear interpolation in a CV_32FC2 table at (x, y) ∈ [0, cols − 1] × [0, rows − 1] (the
-// caller checks the range).
-inline void Bilinear(const cv::Mat& table, double x, double y, double* out0, double* out1) {
-  const int width = table.cols, height = table.rows;
-  const int x0 = std::min(static_cast<int>(x), width - 2 < 0 ? 0 : width - 2);
-  const int y0 = std::min(static_cast<int>(y), height - 2 < 0 ? 0 : height - 2);
-  const int x1 = std::min(x0 + 1, width - 1), y1 = std::min(y0 + 1, height - 1);
-  const double fx = x - x0, fy = y - y0;
-  const cv::Vec2f* row0 = table.ptr<cv::Vec2f>(y0);
-  const cv::Vec2f* row1 = table.ptr<cv::Vec2f>(y1);
-  const cv::Vec2f a = row0[x0], b = row0[x1], c = row1[x0], d = row1[x1];
-  *out0 = (1 - fy) * ((1 - fx) * a[0] + fx * b[0]) + fy * ((1 - fx) * c[0] + fx * d[0]);
-  *out1 = (1 - fy) * ((1 - fx) * a[1] + fx * b[1]) + fy * ((1 - fx) * c[1] + fx * d[1]);
-}
-
-inline bool InTable(const cv::Mat& table, double x, double y) {
-  return x >= 0 && y >= 0 && x <= table.cols - 1 && y <= table.rows - 1;
-}
-
 // Light planes of one projector axis from the ray grid `extended` (undistorted normalised
 // coordinates of the projector pixels shifted by `margin`, `margin` pixels beyond every
 // border): for columns, the chord through column c at rows r ± margin, n = a × b with
@@ -222,6 +205,7 @@ Triangulator::Triangulator(const RigCalibration& calibration,
   projector_rays_ = extended(cv::Rect(kMargin, kMargin, projector.width, projector.height));
   column_planes_ = PlaneTable(extended, kMargin, projector.width, projector.height, true);
   row_planes_ = PlaneTable(extended, kMargin, projector.width, projector.height, false);
+  fast_tables_ = projector.width >= 2 && projector.height >= 2;
 }
 
 size_t Triangulator::TableBytes() const {
@@ -432,34 +416,44 @@ TriangulationResult Triangulator::TriangulateExact(const CorrespondenceMap& map,
 }
 
 // Per-thread working arrays of the fast path: one camera row's candidate pixels as
-// structure-of-arrays, so the geometry loops have no branches and vectorise.
+// structure-of-arrays (a few kB: they stay in L1), filled by one fused, branch-free loop
+// per row.
+namespace {
+
+// Candidates are processed in chunks of this many: the chunk's working arrays (~40 kB)
+// stay in L1 (with the row arrays and the streamed tables).
+constexpr int kChunk = 64;
+
+}  // namespace
+
+// Per-thread working arrays of the fast path: one camera row's candidate pixels, and the
+// structure-of-arrays of one chunk of them. Each stage is its own loop over the chunk:
+// the gathers from the tables are short scalar loops (GCC does not vectorise gathers for
+// this CPU), the geometry loops read and write only contiguous arrays and vectorise.
 struct Triangulator::RowScratch {
-  // Candidates: column, camera ray (x/z, y/z), projector coordinates.
-  std::vector<int> xs;
-  std::vector<double> ray_x, ray_y, proj_x, proj_y;
-  // Two-axis: the projector ray; one axis: the plane (two normal components).
-  std::vector<double> aux0, aux1;
-  // One axis: camera ray in the projector frame, third normal component, the row (column)
-  // a step linearises at and where its point lands, the step's depth.
-  std::vector<double> q_x, q_y, q_z, aux2, landed, next, depth;
-  std::vector<double> point_x, point_y, point_z;
-  // 1 accepted, 0 rejected; exact_[i] 1: left to the exact per-point path.
-  std::vector<uint8_t> ok, exact, done, valid;
-  // Output of the rows this scratch has seen.
-  std::vector<Eigen::Vector3f> points;
-  std::vector<Color3ub> colors;
-  std::vector<cv::Point> pixels;
-  size_t rejected = 0;
+  std::vector<int> xs;                           // candidate columns of the row
+  std::vector<float> point_x, point_y, point_z;  // per candidate, camera frame, metres
+  // 1 accepted, 0 rejected; exact 1: left to the exact per-point path.
+  std::vector<uint8_t> ok, exact;
+  int count = 0;  // candidates of the row
+
+  // One chunk: camera ray, decoded coordinates, interpolation state, intermediate results.
+  alignas(64) double ray_x[kChunk], ray_y[kChunk], coded_u[kChunk], coded_v[kChunk];
+  alignas(64) double look_u[kChunk], look_v[kChunk], frac_u[kChunk], frac_v[kChunk];
+  alignas(64) int32_t index[kChunk];
+  alignas(64) float top[4 * kChunk], bottom[4 * kChunk];  // (a, b) and (c, d) corner pairs
+  alignas(64) double out0[kChunk], out1[kChunk], out2[kChunk];
+  alignas(64) double q_x[kChunk], q_y[kChunk], q_z[kChunk];
+  alignas(64) double landed[kChunk], next[kChunk], numerator[kChunk], denominator[kChunk];
+  alignas(64) double chord[4 * kChunk];
+  alignas(64) uint8_t inside[kChunk], valid[kChunk], good[kChunk], done[kChunk],
+      to_exact[kChunk];
 
   void Resize(size_t n) {
-    for (std::vector<double>* v : {&ray_x, &ray_y, &proj_x, &proj_y, &aux0, &aux1, &q_x, &q_y,
-                                   &q_z, &aux2, &landed, &next, &depth, &point_x, &point_y,
-                                   &point_z}) {
-      if (v->size() < n) v->resize(n);
-    }
-    for (std::vector<uint8_t>* v : {&ok, &exact, &done, &valid}) {
-      if (v->size() < n) v->resize(n);
-    }
+    if (xs.size() >= n) return;
+    for (std::vector<float>* v : {&point_x, &point_y, &point_z}) v->resize(n);
+    for (std::vector<uint8_t>* v : {&ok, &exact}) v->resize(n);
+    xs.resize(n);
   }
 };
 
@@ -475,11 +469,9 @@ constexpr double kRayPlaneMaxRowShiftPx = 1.0;
 // normals) for all but the last, which takes the exact path's chord from the ray grid.
 constexpr int kRayPlaneSteps = 3;
 
-}  // namespace
-
-// The per-point geometry as kernels over structure-of-arrays: free functions with
-// __restrict arrays and their constants copied into locals, so GCC vectorises them
-// (inside the member function, it did not).
+// Free functions with __restrict arrays and every constant in a local: inside a member
+// function, stores to the output arrays could alias the tables' cv::Mat headers and GCC
+// reloads them per point (and does not vectorise).
 struct Pose {
   // proj_from_cam: X_proj = r·X_cam + t (row-major), and r⁻¹ = rᵀ.
   double r[9];
@@ -487,149 +479,357 @@ struct Pose {
   double center_in_cam[3];  // −rᵀ·t
 };
 
-// Midpoint of the closest approach of X = s·d_c and X = C_p + u·d_p, d_c = (x, y, 1) the
-// camera ray, d_p = rᵀ·(x_p, y_p, 1) the projector ray: X = ½(s·d_c + C_p + u·d_p).
-void MidpointKernel(int n, const Pose& pose, const double* __restrict ray_x,
-                    const double* __restrict ray_y, const double* __restrict proj_ray_x,
-                    const double* __restrict proj_ray_y, double* __restrict px,
-                    double* __restrict py, double* __restrict pz, uint8_t* __restrict ok) {
-  const double q00 = pose.r[0], q01 = pose.r[3], q02 = pose.r[6];
-  const double q10 = pose.r[1], q11 = pose.r[4], q12 = pose.r[7];
-  const double q20 = pose.r[2], q21 = pose.r[5], q22 = pose.r[8];
+// A CV_32FC2 table as a plain array: entry (c, r) at data[r·stride + 2c]; width, height ≥ 2.
+struct Grid {
+  const float* data = nullptr;
+  int32_t stride = 0;  // floats per row
+  int width = 0, height = 0;
+  double max_u = 0, max_v = 0;  // width − 1, height − 1
+  explicit Grid(const cv::Mat& table)
+      : data(table.ptr<float>(0)),
+        stride(static_cast<int32_t>(table.step1())),
+        width(table.cols),
+        height(table.rows),
+        max_u(table.cols - 1),
+        max_v(table.rows - 1) {}
+};
+
+// Bilinear interpolation in `grid` (the exact path's arithmetic: (1 − f_v)((1 − f_u)a +
+// f_u·b) + f_v((1 − f_u)c + f_u·d)) at (u[i], v[i]): inside[i] whether the point is on
+// the grid ([0, w − 1] × [0, h − 1], false for NaN); off it the value is that at (0, 0)
+// (the caller sends such points to the exact path or ignores them).
+void Interpolate(const Grid& grid_in, int n, const double* __restrict u_in,
+                 const double* __restrict v_in, Triangulator::RowScratch* w,
+                 double* __restrict out0, double* __restrict out1, uint8_t* __restrict inside) {
+  const Grid grid = grid_in;
+  double* __restrict fu = w->frac_u;
+  double* __restrict fv = w->frac_v;
+  int32_t* __restrict index = w->index;
+  const int last_x = grid.width - 2, last_y = grid.height - 2;
+  for (int i = 0; i < n; ++i) {
+    const double u0 = u_in[i], v0 = v_in[i];
+    const bool in = (u0 >= 0) & (v0 >= 0) & (u0 <= grid.max_u) & (v0 <= grid.max_v);
+    const double u = in ? u0 : 0.0, v = in ? v0 : 0.0;
+    const int32_t x0 = std::min(static_cast<int32_t>(u), last_x);
+    const int32_t y0 = std::min(static_cast<int32_t>(v), last_y);
+    fu[i] = u - x0;
+    fv[i] = v - y0;
+    index[i] = y0 * grid.stride + 2 * x0;
+    inside[i] = in;
+  }
+  float* __restrict top = w->top;
+  float* __restrict bottom = w->bottom;
+  const float* data = grid.data;
+  const int32_t stride = grid.stride;
+  for (int i = 0; i < n; ++i) {
+    std::memcpy(top + 4 * i, data + index[i], 4 * sizeof(float));
+    std::memcpy(bottom + 4 * i, data + index[i] + stride, 4 * sizeof(float));
+  }
+  for (int i = 0; i < n; ++i) {
+    const double a = fu[i], b = fv[i];
+    out0[i] = (1 - b) * ((1 - a) * top[4 * i] + a * top[4 * i + 2]) +
+              b * ((1 - a) * bottom[4 * i] + a * bottom[4 * i + 2]);
+    out1[i] = (1 - b) * ((1 - a) * top[4 * i + 1] + a * top[4 * i + 3]) +
+              b * ((1 - a) * bottom[4 * i + 1] + a * bottom[4 * i + 3]);
+  }
+}
+
+// Undistorted → distorted (Lens::Distort); kRational: k4–k6 present (else the divisor is
+// exactly 1 and skipped: the same result).
+template <bool kRational>
+inline void DistortPoint(const Lens& lens, double x, double y, double* xd, double* yd) {
+  const double r2 = x * x + y * y, r4 = r2 * r2, r6 = r4 * r2;
+  double radial = 1.0 + lens.k1 * r2 + lens.k2 * r4 + lens.k3 * r6;
+  if constexpr (kRational) radial /= 1.0 + lens.k4 * r2 + lens.k5 * r4 + lens.k6 * r6;
+  *xd = x * radial + 2.0 * lens.p1 * x * y + lens.p2 * (r2 + 2.0 * x * x);
+  *yd = y * radial + lens.p1 * (r2 + 2.0 * y * y) + 2.0 * lens.p2 * x * y;
+}
+
+// Both axes coded: the point from the camera ray d_c = (x, y, 1) and the projector ray
+// (ux, uy) by the midpoint of closest approach (X = ½(s·d_c + C_p + u·d_p),
+// d_p = rᵀ·(ux, uy, 1)) or by the 3×3 normal equations of the linear method (thesis eq.
+// 4.1: rows (−1, 0, x_c), (0, −1, y_c), x_p·r₃ − r₁, y_p·r₃ − r₂, b = (0, 0,
+// t_x − x_p·t_z, t_y − y_p·t_z), Cramer's rule), then the reprojection test (kReproject:
+// in front of the projector, within max_px of the decoded coordinates) and the depth band.
+template <bool kLinear, bool kReproject, bool kRational>
+void TwoAxisKernel(int n, const double* __restrict ray_x, const double* __restrict ray_y,
+                   const double* __restrict coded_u, const double* __restrict coded_v,
+                   const double* __restrict proj_ray_x, const double* __restrict proj_ray_y,
+                   const Pose& pose, const Lens& lens_in, double max_px, double min_depth,
+                   double max_depth, float* __restrict out_x, float* __restrict out_y,
+                   float* __restrict out_z, uint8_t* __restrict ok) {
+  const Lens lens = lens_in;
+  const double r00 = pose.r[0], r01 = pose.r[1], r02 = pose.r[2];
+  const double r10 = pose.r[3], r11 = pose.r[4], r12 = pose.r[5];
+  const double r20 = pose.r[6], r21 = pose.r[7], r22 = pose.r[8];
+  const double tx = pose.t[0], ty = pose.t[1], tz = pose.t[2];
   const double c0 = pose.center_in_cam[0], c1 = pose.center_in_cam[1],
                c2 = pose.center_in_cam[2];
+  const double max_px2 = max_px * max_px;
   for (int i = 0; i < n; ++i) {
     const double dcx = ray_x[i], dcy = ray_y[i];
     const double ux = proj_ray_x[i], uy = proj_ray_y[i];
-    const double dpx = q00 * ux + q01 * uy + q02;
-    const double dpy = q10 * ux + q11 * uy + q12;
-    const double dpz = q20 * ux + q21 * uy + q22;
-    const double a = dcx * dcx + dcy * dcy + 1.0;
-    const double b = dcx * dpx + dcy * dpy + dpz;
-    const double e = dpx * dpx + dpy * dpy + dpz * dpz;
-    const double denominator = a * e - b * b;
-    const double dc = dcx * c0 + dcy * c1 + c2;
-    const double dp = dpx * c0 + dpy * c1 + dpz * c2;
-    const double s = (dc * e - b * dp) / denominator;
-    const double u = (b * dc - a * dp) / denominator;
-    px[i] = 0.5 * (s * dcx + (c0 + u * dpx));
-    py[i] = 0.5 * (s * dcy + (c1 + u * dpy));
-    pz[i] = 0.5 * (s + (c2 + u * dpz));
-    ok[i] = std::abs(denominator) >= 1e-12 * a * e;
+    double px, py, pz;
+    bool good;
+    if constexpr (!kLinear) {
+      const double dpx = r00 * ux + r10 * uy + r20;
+      const double dpy = r01 * ux + r11 * uy + r21;
+      const double dpz = r02 * ux + r12 * uy + r22;
+      const double a = dcx * dcx + dcy * dcy + 1.0;
+      const double b = dcx * dpx + dcy * dpy + dpz;
+      const double e = dpx * dpx + dpy * dpy + dpz * dpz;
+      const double denominator = a * e - b * b;
+      const double dc = dcx * c0 + dcy * c1 + c2;
+      const double dp = dpx * c0 + dpy * c1 + dpz * c2;
+      const double inverse = 1.0 / denominator;
+      const double s = (dc * e - b * dp) * inverse;
+      const double u = (b * dc - a * dp) * inverse;
+      px = 0.5 * (s * dcx + (c0 + u * dpx));
+      py = 0.5 * (s * dcy + (c1 + u * dpy));
+      pz = 0.5 * (s + (c2 + u * dpz));
+      good = std::abs(denominator) >= 1e-12 * a * e;
+    } else {
+      const double a20 = ux * r20 - r00, a21 = ux * r21 - r01, a22 = ux * r22 - r02;
+      const double a30 = uy * r20 - r10, a31 = uy * r21 - r11, a32 = uy * r22 - r12;
+      const double b2 = tx - ux * tz, b3 = ty - uy * tz;
+      const double n00 = 1.0 + a20 * a20 + a30 * a30;
+      const double n01 = a20 * a21 + a30 * a31;
+      const double n02 = -dcx + a20 * a22 + a30 * a32;
+      const double n11 = 1.0 + a21 * a21 + a31 * a31;
+      const double n12 = -dcy + a21 * a22 + a31 * a32;
+      const double n22 = dcx * dcx + dcy * dcy + a22 * a22 + a32 * a32;
+      const double g0 = a20 * b2 + a30 * b3, g1 = a21 * b2 + a31 * b3, g2 = a22 * b2 + a32 * b3;
+      const double m00 = n11 * n22 - n12 * n12, m01 = n02 * n12 - n01 * n22,
+                   m02 = n01 * n12 - n02 * n11;
+      const double m11 = n00 * n22 - n02 * n02, m12 = n01 * n02 - n00 * n12,
+                   m22 = n00 * n11 - n01 * n01;
+      const double inverse = 1.0 / (n00 * m00 + n01 * m01 + n02 * m02);
+      px = (m00 * g0 + m01 * g1 + m02 * g2) * inverse;
+      py = (m01 * g0 + m11 * g1 + m12 * g2) * inverse;
+      pz = (m02 * g0 + m12 * g1 + m22 * g2) * inverse;
+      good = true;
+    }
+    if constexpr (kReproject) {
+      const double xp = r00 * px + r01 * py + r02 * pz + tx;
+      const double yp = r10 * px + r11 * py + r12 * pz + ty;
+      const double zp = r20 * px + r21 * py + r22 * pz + tz;
+      const double inverse_z = 1.0 / zp;
+      double xd, yd;
+      DistortPoint<kRational>(lens, xp * inverse_z, yp * inverse_z, &xd, &yd);
+      const double ex = lens.fx * xd + lens.cx - coded_u[i];
+      const double ey = lens.fy * yd + lens.cy - coded_v[i];
+      good = good & (zp > 0) & !(ex * ex + ey * ey > max_px2);
+    }
+    out_x[i] = static_cast<float>(px);
+    out_y[i] = static_cast<float>(py);
+    out_z[i] = static_cast<float>(pz);
+    ok[i] = good & (pz >= min_depth) & (pz <= max_depth);
   }
 }
 
-// Linear least squares (thesis eq. 4.1) in normalised coordinates, camera P = [I|0],
-// projector P = [r|t]: rows (−1, 0, x_c), (0, −1, y_c), x_p·r₃ − r₁, y_p·r₃ − r₂ with
-// b = (0, 0, t_x − x_p·t_z, t_y − y_p·t_z); the 3×3 normal equations AᵀA·X = Aᵀb solved
-// by Cramer's rule.
-void LinearKernel(int n, const Pose& pose, const double* __restrict ray_x,
-                  const double* __restrict ray_y, const double* __restrict proj_ray_x,
-                  const double* __restrict proj_ray_y, double* __restrict px,
-                  double* __restrict py, double* __restrict pz, uint8_t* __restrict ok) {
-  const double r00 = pose.r[0], r01 = pose.r[1], r02 = pose.r[2];
-  const double r10 = pose.r[3], r11 = pose.r[4], r12 = pose.r[5];
-  const double r20 = pose.r[6], r21 = pose.r[7], r22 = pose.r[8];
-  const double tx = pose.t[0], ty = pose.t[1], tz = pose.t[2];
-  for (int i = 0; i < n; ++i) {
-    const double dcx = ray_x[i], dcy = ray_y[i];
-    const double ux = proj_ray_x[i], uy = proj_ray_y[i];
-    const double a20 = ux * r20 - r00, a21 = ux * r21 - r01, a22 = ux * r22 - r02;
-    const double a30 = uy * r20 - r10, a31 = uy * r21 - r11, a32 = uy * r22 - r12;
-    const double b2 = tx - ux * tz, b3 = ty - uy * tz;
-    const double n00 = 1.0 + a20 * a20 + a30 * a30;
-    const double n01 = a20 * a21 + a30 * a31;
-    const double n02 = -dcx + a20 * a22 + a30 * a32;
-    const double n11 = 1.0 + a21 * a21 + a31 * a31;
-    const double n12 = -dcy + a21 * a22 + a31 * a32;
-    const double n22 = dcx * dcx + dcy * dcy + a22 * a22 + a32 * a32;
-    const double g0 = a20 * b2 + a30 * b3, g1 = a21 * b2 + a31 * b3, g2 = a22 * b2 + a32 * b3;
-    const double m00 = n11 * n22 - n12 * n12, m01 = n02 * n12 - n01 * n22,
-                 m02 = n01 * n12 - n02 * n11;
-    const double m11 = n00 * n22 - n02 * n02, m12 = n01 * n02 - n00 * n12,
-                 m22 = n00 * n11 - n01 * n01;
-    const double det = n00 * m00 + n01 * m01 + n02 * m02;
-    px[i] = (m00 * g0 + m01 * g1 + m02 * g2) / det;
-    py[i] = (m01 * g0 + m11 * g1 + m12 * g2) / det;
-    pz[i] = (m02 * g0 + m12 * g1 + m22 * g2) / det;
-    ok[i] = 1;
-  }
-}
-
-// ok ∧= the point is in front of the projector and reprojects within `max_px` of the
-// decoded projector coordinates (not tested when NaN, as the exact path).
-void ReprojectionKernel(int n, const Pose& pose, const Lens& lens_in, double max_px,
-                        const double* __restrict px, const double* __restrict py,
-                        const double* __restrict pz, const double* __restrict proj_x,
-                        const double* __restrict proj_y, uint8_t* __restrict ok) {
-  const Lens lens = lens_in;
-  const double r00 = pose.r[0], r01 = pose.r[1], r02 = pose.r[2];
-  const double r10 = pose.r[3], r11 = pose.r[4], r12 = pose.r[5];
-  const double r20 = pose.r[6], r21 = pose.r[7], r22 = pose.r[8];
-  const double tx = pose.t[0], ty = pose.t[1], tz = pose.t[2];
-  for (int i = 0; i < n; ++i) {
-    const double x = px[i], y = py[i], z = pz[i];
-    const double xp = r00 * x + r01 * y + r02 * z + tx;
-    const double yp = r10 * x + r11 * y + r12 * z + ty;
-    const double zp = r20 * x + r21 * y + r22 * z + tz;
-    double xd, yd;
-    lens.Distort(xp / zp, yp / zp, &xd, &yd);
-    const double ex = lens.fx * xd + lens.cx - proj_x[i];
-    const double ey = lens.fy * yd + lens.cy - proj_y[i];
-    const bool keep = (zp > 0) & !(std::sqrt(ex * ex + ey * ey) > max_px);
-    ok[i] = ok[i] & keep;
-  }
-}
-
-// ok ∧= min_depth ≤ z ≤ max_depth.
-void DepthBandKernel(int n, double min_depth, double max_depth, const double* __restrict pz,
-                     uint8_t* __restrict ok) {
-  for (int i = 0; i < n; ++i) ok[i] = ok[i] & (pz[i] >= min_depth) & (pz[i] <= max_depth);
-}
-
-// q = r·(x, y, 1): the camera ray in the projector frame.
-void RotateRaysKernel(int n, const Pose& pose, const double* __restrict ray_x,
-                      const double* __restrict ray_y, double* __restrict qx,
-                      double* __restrict qy, double* __restrict qz) {
-  const double r00 = pose.r[0], r01 = pose.r[1], r02 = pose.r[2];
-  const double r10 = pose.r[3], r11 = pose.r[4], r12 = pose.r[5];
-  const double r20 = pose.r[6], r21 = pose.r[7], r22 = pose.r[8];
-  for (int i = 0; i < n; ++i) {
-    const double x = ray_x[i], y = ray_y[i];
-    qx[i] = r00 * x + r01 * y + r02;
-    qy[i] = r10 * x + r11 * y + r12;
-    qz[i] = r20 * x + r21 * y + r22;
-  }
-}
-
-// One ray–plane intersection per pixel: X_proj = s·q + t on the plane n·X_proj = 0, so
-// s = −n·t / n·q; `next` the projector row (`columns`) or column where X lands, `valid`
-// whether the step counts (plane not parallel to the ray, point in front of the
-// projector, landing finite).
-void RayPlaneKernel(int n, const Pose& pose, const Lens& lens_in, bool columns,
-                    const double* __restrict qx, const double* __restrict qy,
-                    const double* __restrict qz, const double* __restrict nx_in,
-                    const double* __restrict ny_in, const double* __restrict nz_in,
-                    double* __restrict depth, double* __restrict next,
-                    uint8_t* __restrict valid) {
+// One ray–plane step per candidate: the camera ray X_proj = s·q + t (q = r·d_c) meets the
+// plane n·X_proj = 0, s = N / D with N = −n·t, D = n·q; the point lands at
+// (N·q + D·t) / (N·q_z + D·t_z) (one division), `landed` its projector row (kColumns) or
+// column. Valid: the plane is not parallel to the ray, the point is in front of the
+// projector, the landing is finite.
+template <bool kColumns, bool kRational>
+void RayPlaneStep(int n, const Pose& pose, const Lens& lens_in, const double* __restrict qx,
+                  const double* __restrict qy, const double* __restrict qz,
+                  const double* __restrict nx_in, const double* __restrict ny_in,
+                  const double* __restrict nz_in, double* __restrict numerator,
+                  double* __restrict denominator, double* __restrict landed,
+                  uint8_t* __restrict valid) {
   const Lens lens = lens_in;
   const double tx = pose.t[0], ty = pose.t[1], tz = pose.t[2];
-  const double scale = columns ? lens.fy : lens.fx, offset = columns ? lens.cy : lens.cx;
-  const double pick_y = columns ? 1.0 : 0.0;
   for (int i = 0; i < n; ++i) {
     const double nx = nx_in[i], ny = ny_in[i], nz = nz_in[i];
-    const double denominator = nx * qx[i] + ny * qy[i] + nz * qz[i];
-    const double s = -(nx * tx + ny * ty + nz * tz) / denominator;
-    const double xp = s * qx[i] + tx, yp = s * qy[i] + ty, zp = s * qz[i] + tz;
+    const double d = nx * qx[i] + ny * qy[i] + nz * qz[i];
+    const double num = -(nx * tx + ny * ty + nz * tz);
+    const double z = num * qz[i] + d * tz;
+    const double inverse_z = 1.0 / z;
     double xd, yd;
-    lens.Distort(xp / zp, yp / zp, &xd, &yd);
-    const double landed = scale * (pick_y * yd + (1.0 - pick_y) * xd) + offset;
-    depth[i] = s;
-    next[i] = landed;
-    valid[i] = (std::abs(denominator) >= 1e-12 * std::sqrt(nx * nx + ny * ny + nz * nz)) &
-               (zp > 0) & (std::abs(landed) <= std::numeric_limits<double>::max());
+    DistortPoint<kRational>(lens, (num * qx[i] + d * tx) * inverse_z,
+                            (num * qy[i] + d * ty) * inverse_z, &xd, &yd);
+    const double l = kColumns ? lens.fy * yd + lens.cy : lens.fx * xd + lens.cx;
+    numerator[i] = num;
+    denominator[i] = d;
+    landed[i] = l;
+    valid[i] = (d * d >= 1e-24 * (nx * nx + ny * ny + nz * nz)) & (z * d > 0) &
+               (std::abs(l) <= std::numeric_limits<double>::max());
   }
 }
+
+// (coded, other) as (u, v) of the tables: u the column, v the row.
+template <bool kColumns>
+void PlaneTableCoordinates(int n, const double* __restrict coded, const double* __restrict other,
+                           double* __restrict u, double* __restrict v) {
+  for (int i = 0; i < n; ++i) {
+    u[i] = kColumns ? coded[i] : other[i];
+    v[i] = kColumns ? other[i] : coded[i];
+  }
+}
+
+// The plane-table normal from the interpolated (first, second): (1, first, second) for
+// columns, (first, 1, second) for rows; into (n0, n1, n2).
+template <bool kColumns>
+void TableNormal(int n, const double* __restrict first, const double* __restrict second,
+                 double* __restrict n0, double* __restrict n1, double* __restrict n2) {
+  for (int i = 0; i < n; ++i) {
+    const double f = first[i], s = second[i];
+    n0[i] = kColumns ? 1.0 : f;
+    n1[i] = kColumns ? f : 1.0;
+    n2[i] = s;
+  }
+}
+
+// One axis coded (kColumns: x): ray–plane as the exact path's re-linearisation — the plane
+// at the projector's centre row (column) from the plane table, then at the row where that
+// point lands (plane table again, unless it moved < 1e-3 px), then the exact path's chord
+// through the row it stopped at, from the ray grid with its margin. Coordinates off the
+// tables, and a row still moving ≥ kRayPlaneMaxRowShiftPx after the last step, go to the
+// exact path (exact = 1).
+template <bool kColumns, bool kRational>
+void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes,
+                   const Grid& grid, double min_depth, double max_depth,
+                   Triangulator::RowScratch* w, float* __restrict out_x,
+                   float* __restrict out_y, float* __restrict out_z, uint8_t* __restrict ok,
+                   uint8_t* __restrict exact) {
+  static_assert(kRayPlaneSteps == 3, "three steps below");
+  const double* __restrict ray_x = w->ray_x;
+  const double* __restrict ray_y = w->ray_y;
+  const double* __restrict coded = kColumns ? w->coded_u : w->coded_v;
+  double* __restrict qx = w->q_x;
+  double* __restrict qy = w->q_y;
+  double* __restrict qz = w->q_z;
+  double* __restrict landed = w->landed;
+  double* __restrict next = w->next;
+  double* __restrict n0 = w->out0;
+  double* __restrict n1 = w->out1;
+  double* __restrict n2 = w->out2;
+  uint8_t* __restrict inside = w->inside;
+  uint8_t* __restrict valid = w->valid;
+  uint8_t* __restrict good = w->good;
+  uint8_t* __restrict done = w->done;
+  uint8_t* __restrict to_exact = w->to_exact;
+  {
+    const double r00 = pose.r[0], r01 = pose.r[1], r02 = pose.r[2];
+    const double r10 = pose.r[3], r11 = pose.r[4], r12 = pose.r[5];
+    const double r20 = pose.r[6], r21 = pose.r[7], r22 = pose.r[8];
+    const double start = kColumns ? lens.cy : lens.cx;
+    for (int i = 0; i < n; ++i) {
+      const double x = ray_x[i], y = ray_y[i];
+      qx[i] = r00 * x + r01 * y + r02;
+      qy[i] = r10 * x + r11 * y + r12;
+      qz[i] = r20 * x + r21 * y + r22;
+      landed[i] = start;
+    }
+  }
+  // Step 1: the plane table at the centre row.
+  PlaneTableCoordinates<kColumns>(n, coded, landed, w->look_u, w->look_v);
+  Interpolate(planes, n, w->look_u, w->look_v, w, w->chord, w->chord + kChunk, inside);
+  TableNormal<kColumns>(n, w->chord, w->chord + kChunk, n0, n1, n2);
+  RayPlaneStep<kColumns, kRational>(n, pose, lens, qx, qy, qz, n0, n1, n2, w->numerator,
+                                    w->denominator, next, valid);
+  for (int i = 0; i < n; ++i) {
+    const bool active = inside[i] != 0;
+    const bool v = valid[i] != 0;
+    to_exact[i] = !active;
+    good[i] = !active | v;
+    const bool moved = !(std::abs(next[i] - landed[i]) < 1e-3);
+    done[i] = active & v & !moved;
+    landed[i] = (active & v & moved) ? next[i] : landed[i];
+  }
+  // Step 2: the plane table at the landed row, for those still moving.
+  PlaneTableCoordinates<kColumns>(n, coded, landed, w->look_u, w->look_v);
+  Interpolate(planes, n, w->look_u, w->look_v, w, w->chord, w->chord + kChunk, inside);
+  TableNormal<kColumns>(n, w->chord, w->chord + kChunk, n0, n1, n2);
+  RayPlaneStep<kColumns, kRational>(n, pose, lens, qx, qy, qz, n0, n1, n2, w->numerator,
+                                    w->denominator, next, valid);
+  for (int i = 0; i < n; ++i) {
+    const bool g = good[i] != 0, d = done[i] != 0, v = valid[i] != 0;
+    const bool e = (to_exact[i] != 0) | (g & !d & (inside[i] == 0));
+    const bool active = g & !d & !e;
+    to_exact[i] = e;
+    good[i] = g & (!active | v);
+    const bool moved = !(std::abs(next[i] - landed[i]) < 1e-3);
+    done[i] = d | (active & v & !moved);
+    landed[i] = (active & v & moved) ? next[i] : landed[i];
+  }
+  // Step 3: the chord through the row it stopped at, the rays at other ± kHalf.
+  constexpr double kHalf = Triangulator::kPlaneHalfSpanPx;
+  double* __restrict look_u = w->look_u;
+  double* __restrict look_v = w->look_v;
+  for (int i = 0; i < n; ++i) {
+    const double u = kColumns ? coded[i] : landed[i], v = kColumns ? landed[i] : coded[i];
+    look_u[i] = (kColumns ? u : u - kHalf) + kHalf;
+    look_v[i] = (kColumns ? v - kHalf : v) + kHalf;
+  }
+  double* __restrict xa = w->chord;
+  double* __restrict ya = w->chord + kChunk;
+  double* __restrict xb = w->chord + 2 * kChunk;
+  double* __restrict yb = w->chord + 3 * kChunk;
+  Interpolate(grid, n, look_u, look_v, w, xa, ya, valid);  // valid: inside for point a
+  for (int i = 0; i < n; ++i) {
+    const double u = kColumns ? coded[i] : landed[i], v = kColumns ? landed[i] : coded[i];
+    look_u[i] = (kColumns ? u : u + kHalf) + kHalf;
+    look_v[i] = (kColumns ? v + kHalf : v) + kHalf;
+  }
+  Interpolate(grid, n, look_u, look_v, w, xb, yb, inside);
+  for (int i = 0; i < n; ++i) {
+    const bool both = (valid[i] != 0) & (inside[i] != 0);
+    to_exact[i] = (to_exact[i] != 0) | ((good[i] != 0) & !both);
+    n0[i] = ya[i] - yb[i];
+    n1[i] = xb[i] - xa[i];
+    n2[i] = xa[i] * yb[i] - ya[i] * xb[i];
+  }
+  RayPlaneStep<kColumns, kRational>(n, pose, lens, qx, qy, qz, n0, n1, n2, w->numerator,
+                                    w->denominator, next, valid);
+  const double* __restrict num = w->numerator;
+  const double* __restrict den = w->denominator;
+  for (int i = 0; i < n; ++i) {
+    const bool g = good[i] != 0, v = valid[i] != 0, e = to_exact[i] != 0;
+    const bool active = g & !e;
+    const bool kept = g & (!active | v);
+    const bool still_moving =
+        active & v & (done[i] == 0) & !(std::abs(next[i] - landed[i]) < kRayPlaneMaxRowShiftPx);
+    const double s = num[i] / den[i];
+    out_x[i] = static_cast<float>(s * ray_x[i]);
+    out_y[i] = static_cast<float>(s * ray_y[i]);
+    out_z[i] = static_cast<float>(s);
+    ok[i] = kept & (s >= min_depth) & (s <= max_depth);
+    exact[i] = e | still_moving;
+  }
+}
+
+// Colours of the accepted candidates of camera row y into `out` (grey or BGR → RGB).
+void GatherColors(const cv::Mat& white, int y, const int* xs, const uint8_t* ok, int n,
+                  Color3ub* out) {
+  size_t k = 0;
+  if (white.type() == CV_8UC3) {
+    const cv::Vec3b* row = white.ptr<cv::Vec3b>(y);
+    for (int i = 0; i < n; ++i) {
+      const cv::Vec3b bgr = row[xs[i]];
+      out[k] = Color3ub(bgr[2], bgr[1], bgr[0]);
+      k += ok[i];
+    }
+  } else if (white.type() == CV_16UC1) {
+    const uint16_t* row = white.ptr<uint16_t>(y);
+    for (int i = 0; i < n; ++i) {
+      const uint8_t grey = static_cast<uint8_t>(row[xs[i]] >> 8);
+      out[k] = Color3ub(grey, grey, grey);
+      k += ok[i];
+    }
+  } else {
+    const uint8_t* row = white.ptr<uint8_t>(y);
+    for (int i = 0; i < n; ++i) {
+      const uint8_t grey = row[xs[i]];
+      out[k] = Color3ub(grey, grey, grey);
+      k += ok[i];
+    }
+  }
+}
+
+}  // namespace
 
 void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* region_row,
                                   int x_begin, int x_end, int y, RowScratch* scratch) const {
@@ -637,33 +837,28 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
   const uint8_t* mask = map.mask.ptr<uint8_t>(y);
   const float* map_x = map.HasX() ? map.proj_x.ptr<float>(y) : nullptr;
   const float* map_y = map.HasY() ? map.proj_y.ptr<float>(y) : nullptr;
-  const cv::Vec2f* rays = camera_rays_.ptr<cv::Vec2f>(y);
-  w.xs.clear();
-  for (int x = x_begin; x < x_end; ++x) {
-    if (mask[x] != 0 && (region_row == nullptr || region_row[x] != 0)) w.xs.push_back(x);
+  const float* rays = camera_rays_.ptr<float>(y);
+  w.Resize(static_cast<size_t>(camera_rays_.cols));
+  int n = 0;
+  int* __restrict xs = w.xs.data();
+  if (region_row == nullptr) {
+    for (int x = x_begin; x < x_end; ++x) {
+      xs[n] = x;
+      n += mask[x] != 0;
+    }
+  } else {
+    for (int x = x_begin; x < x_end; ++x) {
+      xs[n] = x;
+      n += (mask[x] != 0) & (region_row[x] != 0);
+    }
   }
-  const int n = static_cast<int>(w.xs.size());
+  w.count = n;
   if (n == 0) return;
-  w.Resize(n);
-  constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
-  for (int i = 0; i < n; ++i) {
-    const int x = w.xs[i];
-    w.ray_x[i] = rays[x][0];
-    w.ray_y[i] = rays[x][1];
-    w.proj_x[i] = map_x ? map_x[x] : kNaN;
-    w.proj_y[i] = map_y ? map_y[x] : kNaN;
+  if (!fast_tables_) {
+    // Tables too small to interpolate in (a projector 1 pixel wide): all exact.
+    std::fill(w.exact.begin(), w.exact.begin() + n, uint8_t{1});
+    return;
   }
-  double* __restrict ray_x = w.ray_x.data();
-  double* __restrict ray_y = w.ray_y.data();
-  double* __restrict proj_x = w.proj_x.data();
-  double* __restrict proj_y = w.proj_y.data();
-  double* __restrict aux0 = w.aux0.data();
-  double* __restrict aux1 = w.aux1.data();
-  double* __restrict px = w.point_x.data();
-  double* __restrict py = w.point_y.data();
-  double* __restrict pz = w.point_z.data();
-  uint8_t* __restrict ok = w.ok.data();
-  uint8_t* __restrict exact = w.exact.data();
 
   Pose pose;
   for (int k = 0; k < 9; ++k) pose.r[k] = calibration_.proj_from_cam.rotation(k / 3, k % 3);
@@ -672,123 +867,64 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
     pose.center_in_cam[k] = projector_center_in_cam_[k];
   }
   const Lens lens(calibration_.projector);
-
-  if (map_x != nullptr && map_y != nullptr) {
-    // Projector rays: bilinear in the grid (ProjectorRay's arithmetic); coordinates off
-    // the grid (or not finite) go to the exact path.
-    for (int i = 0; i < n; ++i) {
-      const bool inside = InTable(projector_rays_, proj_x[i], proj_y[i]);
-      exact[i] = !inside;
-      if (inside) {
-        Bilinear(projector_rays_, proj_x[i], proj_y[i], &aux0[i], &aux1[i]);
-      } else {
-        aux0[i] = aux1[i] = 0.0;
-      }
-    }
-    if (options_.method == TriangulationMethod::kMidpoint) {
-      MidpointKernel(n, pose, ray_x, ray_y, aux0, aux1, px, py, pz, ok);
-    } else {
-      LinearKernel(n, pose, ray_x, ray_y, aux0, aux1, px, py, pz, ok);
-    }
-    if (options_.max_reprojection_px > 0) {
-      ReprojectionKernel(n, pose, lens, options_.max_reprojection_px, px, py, pz, proj_x,
-                         proj_y, ok);
-    }
-    DepthBandKernel(n, options_.min_depth, options_.max_depth, pz, ok);
-    return;
-  }
-
-  // Ray–plane: the camera ray X_proj = s·q + t (q = r·d_c) meets the plane n·X_proj = 0
-  // of the coded column (row). Step 1 takes the plane at the projector's centre row
-  // (column), each further step the plane at the row (column) where the previous step's
-  // point lands — the exact path's re-linearisation; the plane tables (interpolated
-  // normals) for all but the final step, which takes the exact path's chord.
+  const bool rational = lens.k4 != 0.0 || lens.k5 != 0.0 || lens.k6 != 0.0;
+  const double min_depth = options_.min_depth, max_depth = options_.max_depth;
+  const double max_px = options_.max_reprojection_px;
+  const bool linear = options_.method == TriangulationMethod::kLinear;
+  const bool reproject = max_px > 0;
+  const bool two_axes = map_x != nullptr && map_y != nullptr;
   const bool columns = map_x != nullptr;
-  const cv::Mat& planes = columns ? column_planes_ : row_planes_;
-  const double* coded = columns ? proj_x : proj_y;
-  const double start = columns ? lens.cy : lens.cx;
-  double* __restrict qx = w.q_x.data();
-  double* __restrict qy = w.q_y.data();
-  double* __restrict qz = w.q_z.data();
-  double* __restrict landed = w.landed.data();
-  double* __restrict next = w.next.data();
-  double* __restrict depth = w.depth.data();
-  double* __restrict nzs = w.aux2.data();
-  uint8_t* __restrict done = w.done.data();
-  uint8_t* __restrict valid = w.valid.data();
-  RotateRaysKernel(n, pose, ray_x, ray_y, qx, qy, qz);
-  // The plane normal (projector frame) into (aux0, aux1, nzs): from the plane table
-  // (dominant component 1), or for the final step the chord n = a × b of the rays at
-  // other ± kPlaneHalfSpanPx, bilinear in the ray grid (with its margin) as the exact
-  // path takes it. False when the coordinates are off the tables.
-  const auto lookup = [&](int i, double other, bool chord) {
-    const double u = columns ? coded[i] : other, v = columns ? other : coded[i];
-    if (!chord) {
-      const bool inside = InTable(planes, u, v);
-      double first = 0.0, second = 0.0;
-      if (inside) Bilinear(planes, u, v, &first, &second);
-      aux0[i] = columns ? 1.0 : first;
-      aux1[i] = columns ? first : 1.0;
-      nzs[i] = second;
-      return inside;
+  const Grid projector_grid(projector_rays_);
+  const Grid planes(columns ? column_planes_ : row_planes_);
+  const Grid margin_grid(projector_rays_with_margin_);
+  constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+  for (int begin = 0; begin < n; begin += kChunk) {
+    const int m = std::min(kChunk, n - begin);
+    const int* __restrict cx = xs + begin;
+    // Gather the chunk's camera rays and decoded coordinates.
+    for (int i = 0; i < m; ++i) {
+      const int x = cx[i];
+      w.ray_x[i] = rays[2 * x];
+      w.ray_y[i] = rays[2 * x + 1];
+      w.coded_u[i] = map_x ? map_x[x] : kNaN;
+      w.coded_v[i] = map_y ? map_y[x] : kNaN;
     }
-    const cv::Mat& grid = projector_rays_with_margin_;
-    const double ua = (columns ? u : u - kPlaneHalfSpanPx) + kPlaneHalfSpanPx;
-    const double va = (columns ? v - kPlaneHalfSpanPx : v) + kPlaneHalfSpanPx;
-    const double ub = (columns ? u : u + kPlaneHalfSpanPx) + kPlaneHalfSpanPx;
-    const double vb = (columns ? v + kPlaneHalfSpanPx : v) + kPlaneHalfSpanPx;
-    const bool inside = InTable(grid, ua, va) && InTable(grid, ub, vb);
-    double xa = 0.0, ya = 0.0, xb = 0.0, yb = 0.0;
-    if (inside) {
-      Bilinear(grid, ua, va, &xa, &ya);
-      Bilinear(grid, ub, vb, &xb, &yb);
-    }
-    aux0[i] = ya - yb;
-    aux1[i] = xb - xa;
-    nzs[i] = xa * yb - ya * xb;
-    return inside;
-  };
-  // `landed` holds the row (column) each step linearises at; `done` marks pixels whose
-  // iteration stopped there (the exact path's |next − other| < 1e-3 px).
-  for (int i = 0; i < n; ++i) {
-    exact[i] = !lookup(i, start, /*chord=*/false);
-    landed[i] = start;
-    done[i] = 0;
-    ok[i] = 1;
-  }
-  for (int step = 0; step + 1 < kRayPlaneSteps; ++step) {
-    RayPlaneKernel(n, pose, lens, columns, qx, qy, qz, aux0, aux1, nzs, depth, next, valid);
-    const bool last_table_step = step + 2 == kRayPlaneSteps;
-    for (int i = 0; i < n; ++i) {
-      const bool active = (ok[i] != 0) & (done[i] == 0) & (exact[i] == 0);
-      // An invalid step rejects, as the exact path's iteration would.
-      ok[i] = ok[i] & (!active | (valid[i] != 0));
-      const bool moved = !(std::abs(next[i] - landed[i]) < 1e-3);
-      done[i] = done[i] | (active & (valid[i] != 0) & !moved);
-      landed[i] = (active & (valid[i] != 0) & moved) ? next[i] : landed[i];
-    }
-    for (int i = 0; i < n; ++i) {
-      if (ok[i] != 0 && exact[i] == 0 && (done[i] == 0 || last_table_step) &&
-          !lookup(i, landed[i], /*chord=*/last_table_step)) {
-        exact[i] = 1;
+    float* px = w.point_x.data() + begin;
+    float* py = w.point_y.data() + begin;
+    float* pz = w.point_z.data() + begin;
+    uint8_t* ok = w.ok.data() + begin;
+    uint8_t* exact = w.exact.data() + begin;
+    if (two_axes) {
+      // The projector ray, bilinear in the grid; coordinates off it to the exact path.
+      Interpolate(projector_grid, m, w.coded_u, w.coded_v, &w, w.out0, w.out1, w.inside);
+      for (int i = 0; i < m; ++i) exact[i] = w.inside[i] == 0;
+#define SOPE_TWO_AXIS(L, R, Q)                                                                \
+  TwoAxisKernel<L, R, Q>(m, w.ray_x, w.ray_y, w.coded_u, w.coded_v, w.out0, w.out1, pose,    \
+                         lens, max_px, min_depth, max_depth, px, py, pz, ok)
+      if (linear) {
+        if (!reproject) SOPE_TWO_AXIS(true, false, false);
+        else if (rational) SOPE_TWO_AXIS(true, true, true);
+        else SOPE_TWO_AXIS(true, true, false);
+      } else {
+        if (!reproject) SOPE_TWO_AXIS(false, false, false);
+        else if (rational) SOPE_TWO_AXIS(false, true, true);
+        else SOPE_TWO_AXIS(false, true, false);
       }
+#undef SOPE_TWO_AXIS
+      continue;
     }
+#define SOPE_RAY_PLANE(C, R)                                                                \
+  RayPlaneChunk<C, R>(m, pose, lens, planes, margin_grid, min_depth, max_depth, &w, px, py, \
+                      pz, ok, exact)
+    if (columns) {
+      if (rational) SOPE_RAY_PLANE(true, true);
+      else SOPE_RAY_PLANE(true, false);
+    } else {
+      if (rational) SOPE_RAY_PLANE(false, true);
+      else SOPE_RAY_PLANE(false, false);
+    }
+#undef SOPE_RAY_PLANE
   }
-  // The final step with the chord at the row (column) the iteration stopped at; a row
-  // (column) still moving more than kRayPlaneMaxRowShiftPx after it is left to the exact
-  // path (the chord's error is second order in that shift).
-  RayPlaneKernel(n, pose, lens, columns, qx, qy, qz, aux0, aux1, nzs, depth, next, valid);
-  for (int i = 0; i < n; ++i) {
-    const bool active = (ok[i] != 0) & (exact[i] == 0);
-    ok[i] = ok[i] & (!active | (valid[i] != 0));
-    exact[i] = exact[i] | (active & (valid[i] != 0) & (done[i] == 0) &
-                           !(std::abs(next[i] - landed[i]) < kRayPlaneMaxRowShiftPx));
-    const double s = depth[i];
-    px[i] = s * ray_x[i];
-    py[i] = s * ray_y[i];
-    pz[i] = s;
-  }
-  DepthBandKernel(n, options_.min_depth, options_.max_depth, pz, ok);
 }
 
 TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map,
@@ -806,59 +942,89 @@ TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map, cons
              "triangulation region mask must be CV_8UC1 {}x{} (the camera size)", width, height);
   const cv::Rect image(0, 0, width, height);
   const cv::Rect roi = region.roi.empty() ? image : (region.roi & image);
+  const float kNaN = std::numeric_limits<float>::quiet_NaN();
   TriangulationResult result;
-  result.depth = cv::Mat(height, width, CV_32FC1,
-                         cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
-  if (roi.empty()) return result;
-
-  // Rows are split into contiguous blocks, each triangulated into its own scratch (in
-  // parallel when asked) and concatenated in row order: the output is the same for any
-  // thread count.
-  const int num_blocks = options_.num_threads > 1 ? std::min(roi.height, 4 * options_.num_threads)
-                                                  : 1;
-  std::vector<RowScratch> blocks(num_blocks);
-  if (num_blocks == 1) {
-    // One block writes straight into its output: reserve the upper bound once.
-    const size_t candidates = static_cast<size_t>(cv::countNonZero(map.mask(roi)));
-    blocks[0].points.reserve(candidates);
-    blocks[0].pixels.reserve(candidates);
-    if (!white.empty()) blocks[0].colors.reserve(candidates);
+  result.depth.create(height, width, CV_32FC1);
+  if (roi.empty()) {
+    result.depth.setTo(cv::Scalar(kNaN));
+    return result;
   }
+  // Rows outside the region's rows: no points (its rows are filled by the blocks).
+  if (roi.y > 0) result.depth.rowRange(0, roi.y).setTo(cv::Scalar(kNaN));
+  if (roi.y + roi.height < height) {
+    result.depth.rowRange(roi.y + roi.height, height).setTo(cv::Scalar(kNaN));
+  }
+
+  // Rows are split into contiguous blocks (in parallel when asked). Each block writes its
+  // points straight into the output from an offset: the decoded pixels of the rows before
+  // it (an upper bound of their points); the gaps that rejected pixels leave are closed
+  // afterwards, so the output is in row order and the same for any thread count.
+  const int num_blocks = options_.num_threads > 1 ? std::min(roi.height, 2 * options_.num_threads)
+                                                  : 1;
+  std::vector<int> block_begin(num_blocks + 1);
+  for (int b = 0; b <= num_blocks; ++b) {
+    block_begin[b] = roi.y + static_cast<int>(static_cast<int64_t>(roi.height) * b / num_blocks);
+  }
+  std::vector<size_t> offset(num_blocks + 1, 0), accepted(num_blocks, 0),
+      rejected(num_blocks, 0);
+  for (int b = 0; b < num_blocks; ++b) {
+    const cv::Rect rows(roi.x, block_begin[b], roi.width, block_begin[b + 1] - block_begin[b]);
+    offset[b + 1] = offset[b] + static_cast<size_t>(cv::countNonZero(map.mask(rows)));
+  }
+  const size_t capacity = offset[num_blocks];
+  result.cloud.points.resize(capacity);
+  result.pixels.resize(capacity);
+  const bool colour = !white.empty();
+  if (colour) result.cloud.colors.resize(capacity);
+  Eigen::Vector3f* points = result.cloud.points.data();
+  cv::Point* pixels = result.pixels.data();
+  Color3ub* colors = colour ? result.cloud.colors.data() : nullptr;
+
   const auto run_blocks = [&](const cv::Range& range) {
+    RowScratch w;
     for (int b = range.start; b < range.end; ++b) {
-      RowScratch& w = blocks[b];
-      const int y_begin = roi.y + static_cast<int>(static_cast<int64_t>(roi.height) * b / num_blocks);
-      const int y_end =
-          roi.y + static_cast<int>(static_cast<int64_t>(roi.height) * (b + 1) / num_blocks);
-      for (int y = y_begin; y < y_end; ++y) {
+      size_t k = offset[b];
+      for (int y = block_begin[b]; y < block_begin[b + 1]; ++y) {
         const uint8_t* region_row = region.mask.empty() ? nullptr : region.mask.ptr<uint8_t>(y);
-        TriangulateRow(map, region_row, roi.x, roi.x + roi.width, y, &w);
         float* depth = result.depth.ptr<float>(y);
+        std::fill(depth, depth + width, kNaN);
+        TriangulateRow(map, region_row, roi.x, roi.x + roi.width, y, &w);
+        const int n = w.count;
+        const int* xs = w.xs.data();
+        float* px = w.point_x.data();
+        float* py = w.point_y.data();
+        float* pz = w.point_z.data();
+        uint8_t* ok = w.ok.data();
+        // The rare candidates left to the exact path.
+        const uint8_t* exact = w.exact.data();
         const float* map_x = map.HasX() ? map.proj_x.ptr<float>(y) : nullptr;
         const float* map_y = map.HasY() ? map.proj_y.ptr<float>(y) : nullptr;
-        const int n = static_cast<int>(w.xs.size());
         for (int i = 0; i < n; ++i) {
-          const int x = w.xs[i];
-          Eigen::Vector3d point(w.point_x[i], w.point_y[i], w.point_z[i]);
-          if (w.exact[i] != 0) {
-            const float kNaN = std::numeric_limits<float>::quiet_NaN();
-            const std::optional<Eigen::Vector3d> exact_point = Intersect(
-                CameraRay(x, y), map_x ? map_x[x] : kNaN, map_y ? map_y[x] : kNaN);
-            if (!exact_point) {
-              ++w.rejected;
-              continue;
-            }
-            point = *exact_point;
-          } else if (w.ok[i] == 0) {
-            ++w.rejected;
-            continue;
+          if (exact[i] == 0) continue;
+          const int x = xs[i];
+          const std::optional<Eigen::Vector3d> point =
+              Intersect(CameraRay(x, y), map_x ? map_x[x] : kNaN, map_y ? map_y[x] : kNaN);
+          ok[i] = point.has_value();
+          if (point) {
+            px[i] = static_cast<float>(point->x());
+            py[i] = static_cast<float>(point->y());
+            pz[i] = static_cast<float>(point->z());
           }
-          depth[x] = static_cast<float>(point.z());
-          w.points.push_back(point.cast<float>());
-          if (!white.empty()) w.colors.push_back(PixelColor(white, x, y));
-          w.pixels.emplace_back(x, y);
         }
+        // Compaction, branch-free: every candidate is written, the accepted ones kept.
+        if (colour) GatherColors(white, y, xs, ok, n, colors + k);
+        size_t kept = k;
+        for (int i = 0; i < n; ++i) {
+          const int x = xs[i];
+          points[kept] = Eigen::Vector3f(px[i], py[i], pz[i]);
+          pixels[kept] = cv::Point(x, y);
+          depth[x] = ok[i] ? pz[i] : kNaN;
+          kept += ok[i];
+        }
+        rejected[b] += n - (kept - k);
+        k = kept;
       }
+      accepted[b] = k - offset[b];
     }
   };
   if (num_blocks > 1) {
@@ -869,26 +1035,20 @@ TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map, cons
   } else {
     run_blocks(cv::Range(0, 1));
   }
-  if (num_blocks == 1) {
-    result.cloud.points = std::move(blocks[0].points);
-    result.cloud.colors = std::move(blocks[0].colors);
-    result.pixels = std::move(blocks[0].pixels);
-    result.rejected = blocks[0].rejected;
-    return result;
-  }
   size_t total = 0;
-  for (const RowScratch& block : blocks) total += block.points.size();
-  result.cloud.points.reserve(total);
-  if (!white.empty()) result.cloud.colors.reserve(total);
-  result.pixels.reserve(total);
-  for (const RowScratch& block : blocks) {
-    result.cloud.points.insert(result.cloud.points.end(), block.points.begin(),
-                               block.points.end());
-    result.cloud.colors.insert(result.cloud.colors.end(), block.colors.begin(),
-                               block.colors.end());
-    result.pixels.insert(result.pixels.end(), block.pixels.begin(), block.pixels.end());
-    result.rejected += block.rejected;
+  for (int b = 0; b < num_blocks; ++b) {
+    if (offset[b] != total && accepted[b] > 0) {
+      // Moves down (total < offset[b]): std::copy is right for the overlap.
+      std::copy(points + offset[b], points + offset[b] + accepted[b], points + total);
+      std::copy(pixels + offset[b], pixels + offset[b] + accepted[b], pixels + total);
+      if (colour) std::copy(colors + offset[b], colors + offset[b] + accepted[b], colors + total);
+    }
+    total += accepted[b];
+    result.rejected += rejected[b];
   }
+  result.cloud.points.resize(total);
+  result.pixels.resize(total);
+  if (colour) result.cloud.colors.resize(total);
   return result;
 }
 

@@ -107,8 +107,10 @@ class Triangulator {
   // Half the span of the chord that linearises a curved light plane, projector pixels.
   static constexpr double kPlaneHalfSpanPx = 8.0;
 
- private:
+  // Working arrays of the fast path (defined in triangulation.cc).
   struct RowScratch;
+
+ private:
   Eigen::Vector2d CameraRay(int x, int y) const;
   Eigen::Vector2d ProjectorRay(double proj_x, double proj_y) const;
   std::optional<Eigen::Vector3d> Intersect(const Eigen::Vector2d& camera_ray, double proj_x,
@@ -134,6 +136,8 @@ class Triangulator {
   // chord through row r at columns c ± kPlaneHalfSpanPx. Normals in the projector frame.
   cv::Mat column_planes_;
   cv::Mat row_planes_;
+  // The tables can be interpolated in (a projector of at least 2×2 pixels).
+  bool fast_tables_ = false;
 };
 
 // One-shot convenience: Triangulator(calibration, options).Triangulate(map, white) (the

@@ -186,6 +186,7 @@ FrameSet RigSession::CaptureInto(const std::vector<Pattern>& patterns, const std
     timing.sequence = frame.sequence;
     timings_.push_back(timing);
     frames.images.push_back(frame.image);
+    if (frame_sink_) frame_sink_(frames.manifest, i, frames.images.back());
     if (!staging.empty()) WriteImageAtomic(JoinPath(staging, patterns[i].info.file), frame.image);
     if (progress) progress(i + 1, patterns.size());
   }

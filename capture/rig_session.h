@@ -118,6 +118,14 @@ class RigSession {
   // Timing of the frames of the last Capture/Record.
   const std::vector<FrameTiming>& timings() const { return timings_; }
 
+  // Called with every frame as soon as it is grabbed (Capture and Record), with the
+  // manifest of the set being captured and the image the frame set keeps (not to be
+  // written into): the live loop decodes while the rest is still being captured
+  // (IncrementalDecoder). An exception from it ends the capture. Empty: none.
+  using FrameSink =
+      std::function<void(const FrameSetManifest& manifest, size_t index, const cv::Mat& image)>;
+  void SetFrameSink(FrameSink sink) { frame_sink_ = std::move(sink); }
+
  private:
   // Shows `image` and returns the first frame exposed after it reached the sensor.
   Frame ShowAndGrab(const cv::Mat& image, const FrameInfo* info, double wait, double* shown);
@@ -131,6 +139,7 @@ class RigSession {
   LatencyMeasurement measurement_;
   bool have_latency_ = false;
   std::vector<FrameTiming> timings_;
+  FrameSink frame_sink_;
 };
 
 // The manifest of `patterns` captured by a camera of the given size, projector size from

@@ -14,9 +14,11 @@
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "decoder/decoder.h"
 #include "pipeline/scan_source.h"
 #include "recogniser/tools/database_builder.h"
 #include "simulator/procedural_objects.h"
@@ -118,6 +120,33 @@ TEST_F(Pipeline, ControllerScansVirtualScenesAndComparesWithTheTruth) {
     EXPECT_LT(r.pose_error->adds_over_diameter(), 0.10) << r.truth->class_name;
   }
   EXPECT_GE(correct, 2);
+}
+
+// The live loop decodes while capturing: every frame reaches the source's frame sink in
+// order as it is grabbed, and an IncrementalDecoder fed from it gives the batch map.
+TEST_F(Pipeline, FramesReachTheSinkAsCapturedAndDecodeAsTheBatch) {
+  VirtualSceneSource source(SceneSource(7));
+  std::unique_ptr<IncrementalDecoder> decoder;
+  size_t calls = 0;
+  source.SetFrameSink([&](const FrameSetManifest& manifest, size_t index, const cv::Mat& image) {
+    EXPECT_EQ(index, calls);
+    if (index == 0) decoder = std::make_unique<IncrementalDecoder>(manifest);
+    ++calls;
+    decoder->AddFrame(index, image);
+  });
+  const SourceScan scan = source.Next(0);
+  ASSERT_EQ(calls, scan.frames.images.size());
+  const CorrespondenceMap live = decoder->Finish();
+  const CorrespondenceMap batch = Decode(scan.frames);
+  ASSERT_GT(batch.CountValid(), 10000u);
+  EXPECT_EQ(cv::norm(live.mask, batch.mask, cv::NORM_INF), 0.0);
+  cv::Mat same_x, same_y;
+  cv::compare(live.proj_x, batch.proj_x, same_x, cv::CMP_EQ);
+  cv::compare(live.proj_y, batch.proj_y, same_y, cv::CMP_EQ);
+  // Equal wherever decoded (NaN elsewhere compares unequal).
+  EXPECT_EQ(cv::countNonZero(same_x & batch.mask), static_cast<int>(batch.CountValid()));
+  EXPECT_EQ(cv::countNonZero(same_y & batch.mask), static_cast<int>(batch.CountValid()));
+  source.SetFrameSink({});
 }
 
 TEST_F(Pipeline, NothingInTheBandIsAStatusAndTheRunGoesOn) {

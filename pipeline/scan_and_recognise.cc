@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
 #include <cstring>
 #include <filesystem>
 
@@ -63,6 +64,65 @@ void RemoveFiles(const ScanFiles& files) {
 
 }  // namespace
 
+// The frame sink of the source: every captured frame goes into an IncrementalDecoder at
+// once, so that after the last frame only its bit and the finish remain (8-bit Gray-code
+// sets against inverses; others are decoded after the capture as before).
+struct ScanAndRecogniseController::LiveDecode {
+  DecoderOptions options;
+  std::unique_ptr<IncrementalDecoder> decoder;
+  std::string layout;      // the serialised manifest the decoder was made for
+  size_t added = 0;        // frames of the current capture in the decoder
+  size_t total = 0;
+  double last_frame_ms = 0.0;  // AddFrame of the last frame (after it was grabbed)
+  bool failed = false;     // the decoder refused a frame: decode after the capture
+
+  void OnFrame(const FrameSetManifest& manifest, size_t index, const cv::Mat& image) {
+    if (index == 0) {
+      added = 0;
+      total = manifest.frames.size();
+      failed = false;
+      try {
+        const std::string serialised = SerializeFrameSetManifest(manifest);
+        if (manifest.HasPhase()) {
+          decoder.reset();
+        } else if (!decoder || serialised != layout) {
+          decoder = std::make_unique<IncrementalDecoder>(manifest, options);
+          layout = serialised;
+        } else {
+          decoder->Reset();
+        }
+      } catch (const Error&) {
+        decoder.reset();
+      }
+    }
+    if (!decoder || failed) return;
+    const auto start = std::chrono::steady_clock::now();
+    try {
+      decoder->AddFrame(index, image);
+      ++added;
+    } catch (const Error&) {
+      failed = true;  // Decode after the capture reports what is wrong
+    }
+    last_frame_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+            .count();
+  }
+  // The map when every frame of `frames` went in; false: decode them as a batch.
+  bool Finish(const FrameSet& frames, CorrespondenceMap* map, double* decode_ms) {
+    if (!decoder || failed || added != total || frames.images.size() != total ||
+        SerializeFrameSetManifest(frames.manifest) != layout) {
+      return false;
+    }
+    const auto start = std::chrono::steady_clock::now();
+    decoder->Finish(map);
+    *decode_ms = last_frame_ms + std::chrono::duration<double, std::milli>(
+                                     std::chrono::steady_clock::now() - start)
+                                     .count();
+    added = 0;
+    return true;
+  }
+};
+
 void ScanAndRecogniseOptions::Check() const {
   scan.Check();
   recognition.Check();
@@ -87,7 +147,14 @@ ScanAndRecogniseController::ScanAndRecogniseController(const ScanAndRecogniseOpt
       scene_recogniser_(database) {
   options_.Check();
   SOPE_CHECK(source_ != nullptr, "scan and recognise: no scan source");
+  live_decode_ = std::make_unique<LiveDecode>();
+  live_decode_->options = options_.scan.decoder;
+  LiveDecode* live = live_decode_.get();
+  source_->SetFrameSink([live](const FrameSetManifest& manifest, size_t index,
+                               const cv::Mat& image) { live->OnFrame(manifest, index, image); });
 }
+
+ScanAndRecogniseController::~ScanAndRecogniseController() { source_->SetFrameSink({}); }
 
 ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& progress) {
   SourceScan in = source_->Next(index, progress);
@@ -102,8 +169,16 @@ ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& pr
   if (!triangulator_ || !source_->fixed_calibration()) {
     triangulator_ = std::make_unique<Triangulator>(in.calibration, options_.scan.triangulation);
   }
+  CorrespondenceMap decoded;
+  double decode_ms = 0.0;
+  const bool decoded_live = live_decode_->Finish(in.frames, &decoded, &decode_ms);
   if (options_.tabletop || in.tabletop) {
-    ScanTable(in.frames, &report);
+    ScanTable(in.frames, decoded_live ? &decoded : nullptr, decode_ms, &report);
+  } else if (decoded_live) {
+    // Decoded during the capture: only the last frame's bit and the finish were left.
+    report.result = RecogniseScan(ScanDecoded(in.frames, std::move(decoded), decode_ms,
+                                              *triangulator_),
+                                  report.band, recogniser_, options_.recognition);
   } else {
     report.result = RecogniseFrameSet(in.frames, *triangulator_, options_.scan.decoder,
                                       report.band, recogniser_, options_.recognition);
@@ -129,10 +204,12 @@ ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& pr
   return report;
 }
 
-void ScanAndRecogniseController::ScanTable(const FrameSet& frames, ScanReport* report) {
+void ScanAndRecogniseController::ScanTable(const FrameSet& frames, CorrespondenceMap* decoded,
+                                           double decode_ms, ScanReport* report) {
   const Stopwatch watch;
   ScanRecognition& out = report->result;
-  out.scan = ScanFrameSet(frames, *triangulator_, options_.scan.decoder);
+  out.scan = decoded ? ScanDecoded(frames, std::move(*decoded), decode_ms, *triangulator_)
+                     : ScanFrameSet(frames, *triangulator_, options_.scan.decoder);
   out.timing.decode = out.scan.decode_ms;
   out.timing.triangulate = out.scan.triangulate_ms;
   const PointCloud& cloud = out.scan.triangulation.cloud;

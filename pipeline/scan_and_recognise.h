@@ -115,6 +115,9 @@ class ScanAndRecogniseController {
   // `source` and `database` must outlive the controller.
   ScanAndRecogniseController(const ScanAndRecogniseOptions& options, ScanSource* source,
                              const Database& database);
+  ~ScanAndRecogniseController();
+  ScanAndRecogniseController(const ScanAndRecogniseController&) = delete;
+  ScanAndRecogniseController& operator=(const ScanAndRecogniseController&) = delete;
   // Runs the scans. Returns how many were done. An interruption (options.cancel) during a
   // capture ends the run quietly once at least one scan of a multi-scan run is done; else
   // it throws like any capture error.
@@ -124,8 +127,10 @@ class ScanAndRecogniseController {
   ScanReport Scan(int index, const CaptureProgress& progress = {});
 
  private:
-  // Tabletop: decode, triangulate, SceneRecogniser; fills report->result and ->scene.
-  void ScanTable(const FrameSet& frames, ScanReport* report);
+  // Tabletop: decode (or take the map decoded during the capture), triangulate,
+  // SceneRecogniser; fills report->result and ->scene.
+  void ScanTable(const FrameSet& frames, CorrespondenceMap* decoded, double decode_ms,
+                 ScanReport* report);
   ScanAndRecogniseOptions options_;
   ScanSource* source_;
   const Database& database_;
@@ -133,6 +138,9 @@ class ScanAndRecogniseController {
   SceneRecogniser scene_recogniser_;
   std::unique_ptr<Triangulator> triangulator_;  // per calibration (undistortion tables)
   RigCalibration triangulator_calibration_;
+  // Decoding during the capture (sources that capture: the frame sink's IncrementalDecoder).
+  struct LiveDecode;
+  std::unique_ptr<LiveDecode> live_decode_;
 };
 
 // The DESIGN.md recognition result of the scan (empty recognition: no "class"…) plus

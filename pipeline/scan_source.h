@@ -81,6 +81,9 @@ class ScanSource {
   // Scan `index` (0, 1, … in order). Throws sope::Error on failure (an unreadable frame
   // set, a lost camera, cancellation).
   virtual SourceScan Next(int index, const CaptureProgress& progress = {}) = 0;
+  // Frames as they are captured (RigSession::SetFrameSink), for decoding during the
+  // capture; sources that do not capture (recorded frame sets) ignore it.
+  virtual void SetFrameSink(RigSession::FrameSink sink) {}
 };
 
 // Recorded frame sets, one scan each, in the order given. `calibration_path` (empty: the
@@ -118,6 +121,7 @@ class LiveRigSource : public ScanSource {
   int size() const override { return options_.record_directory.empty() ? -1 : 1; }
   bool fixed_calibration() const override { return true; }
   SourceScan Next(int index, const CaptureProgress& progress = {}) override;
+  void SetFrameSink(RigSession::FrameSink sink) override { session_->SetFrameSink(std::move(sink)); }
 
  private:
   LiveRigSourceOptions options_;
@@ -144,6 +148,7 @@ class VirtualSceneSource : public ScanSource {
   int size() const override { return -1; }
   bool fixed_calibration() const override { return true; }
   SourceScan Next(int index, const CaptureProgress& progress = {}) override;
+  void SetFrameSink(RigSession::FrameSink sink) override { session_->SetFrameSink(std::move(sink)); }
   // The scene of the last Next (before the first: of scan 0).
   const RecognitionScene& scene() const { return scene_; }
 

@@ -126,11 +126,19 @@ ScanRecognition RecogniseFrameSet(const FrameSet& frames, const Triangulator& tr
                                   const ObjectSegmentationOptions& segmentation,
                                   const Recogniser& recogniser,
                                   const RecognitionOptions& recognition_options) {
-  segmentation.Check();
   decoder_options.Check();
+  return RecogniseScan(ScanFrameSet(frames, triangulator, decoder_options), segmentation,
+                       recogniser, recognition_options);
+}
+
+ScanRecognition RecogniseScan(ScanResult scan, const ObjectSegmentationOptions& segmentation,
+                              const Recogniser& recogniser,
+                              const RecognitionOptions& recognition_options) {
+  segmentation.Check();
   ScanRecognition out;
-  const double start = NowMs();
-  out.scan = ScanFrameSet(frames, triangulator, decoder_options);
+  // The clock started when decoding did (after the last frame).
+  const double start = NowMs() - scan.decode_ms - scan.triangulate_ms;
+  out.scan = std::move(scan);
   out.timing.decode = out.scan.decode_ms;
   out.timing.triangulate = out.scan.triangulate_ms;
   const PointCloud& cloud = out.scan.triangulation.cloud;

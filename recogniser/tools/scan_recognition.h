@@ -83,6 +83,12 @@ ScanRecognition RecogniseFrameSet(const FrameSet& frames, const Triangulator& tr
                                   const ObjectSegmentationOptions& segmentation,
                                   const Recogniser& recogniser,
                                   const RecognitionOptions& recognition_options);
+// The same after decoding and triangulating (ScanFrameSet, or ScanDecoded for a map the
+// live loop decoded during the capture): segment and recognise; the timings include the
+// scan's decode_ms and triangulate_ms.
+ScanRecognition RecogniseScan(ScanResult scan, const ObjectSegmentationOptions& segmentation,
+                              const Recogniser& recogniser,
+                              const RecognitionOptions& recognition_options);
 // The same, building the triangulator from `calibration` (its time not counted).
 ScanRecognition RecogniseFrameSet(const FrameSet& frames, const RigCalibration& calibration,
                                   const ScanOptions& scan_options,
