@@ -380,11 +380,14 @@ PYBIND11_MODULE(_sope, m) {
 
   // Decoding and triangulation.
   m.def("decode",
-        [](const FrameSet& set, double min_contrast, double min_bit_contrast, int num_threads) {
+        [](const FrameSet& set, double min_contrast, double min_bit_contrast, int num_threads,
+           const std::string& gray_subpixel) {
           DecoderOptions options;
           options.min_contrast = min_contrast;
           options.min_bit_contrast = min_bit_contrast;
           options.num_threads = num_threads;
+          options.gray_subpixel = GraySubpixelFromString(gray_subpixel);
+          options.Check();
           CorrespondenceMap map;
           {
             py::gil_scoped_release release;
@@ -394,8 +397,9 @@ PYBIND11_MODULE(_sope, m) {
         },
         py::arg("frame_set"), py::arg("min_contrast") = DecoderOptions().min_contrast,
         py::arg("min_bit_contrast") = DecoderOptions().min_bit_contrast,
-        py::arg("num_threads") = 1,
-        "Correspondence maps: {'proj_x', 'proj_y' (float32, NaN invalid), 'mask' (uint8), "
+        py::arg("num_threads") = 1, py::arg("gray_subpixel") = "edges",
+        "Correspondence maps (Gray codes refined from the stripe edges unless "
+        "gray_subpixel='off', as `sope decode`): {'proj_x', 'proj_y' (float32, NaN invalid), 'mask' (uint8), "
         "'confidence' (float32), 'projector_width', 'projector_height', 'step_x', 'step_y'}");
   m.def("triangulate",
         [](const py::dict& maps, const py::dict& calibration, const py::object& white) {

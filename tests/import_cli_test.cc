@@ -49,7 +49,10 @@ TEST(ImportCli, RealOpenCvCaptureReplacesTheHandWrittenManifest) {
   const FrameSetManifest manifest =
       MakeOpenCvGrayCodeManifest(512, 384, first.cols, first.rows, files);
   WriteFileAtomic(scratch.File("hand/frames.json"), SerializeFrameSetManifest(manifest));
-  const CorrespondenceMap from_hand = Decode(LoadFrameSet(scratch.File("hand")));
+  // Decoded as `sope decode` decodes by default (Gray codes refined from the stripe edges).
+  DecoderOptions as_cli;
+  as_cli.gray_subpixel = GraySubpixel::kEdges;
+  const CorrespondenceMap from_hand = Decode(LoadFrameSet(scratch.File("hand")), as_cli);
 
   ASSERT_GT(from_hand.CountValid(), from_hand.mask.total() / 10);
   EXPECT_EQ(from_cli.CountValid(), from_hand.CountValid());
