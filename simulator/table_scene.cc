@@ -18,25 +18,13 @@ extern "C" {
 #include "core/error.h"
 #include "core/json.h"
 #include "core/object_size.h"
+#include "core/split_mix.h"
 #include "simulator/primitives.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/scene_builder.h"
 
 namespace sope {
 namespace {
-
-// SplitMix64: the same numbers on every platform.
-struct SplitMix {
-  uint64_t state;
-  uint64_t Next() {
-    uint64_t z = (state += 0x9E3779B97F4A7C15ull);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-  }
-  double Uniform() { return static_cast<double>(Next() >> 11) * 0x1.0p-53; }  // [0, 1)
-  double Uniform(double lo, double hi) { return lo + (hi - lo) * Uniform(); }
-};
 
 constexpr double kDegree = M_PI / 180.0;
 // Objects keep this far from the table's edges, metres.

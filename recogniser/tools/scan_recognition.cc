@@ -7,25 +7,13 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
+#include "core/split_mix.h"
 #include "core/stopwatch.h"
 #include "core/units.h"
 #include "simulator/scene_builder.h"
 
 namespace sope {
 namespace {
-
-// SplitMix64: the same numbers on every platform.
-struct SplitMix {
-  uint64_t state;
-  uint64_t Next() {
-    uint64_t z = (state += 0x9E3779B97F4A7C15ull);
-    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-    return z ^ (z >> 31);
-  }
-  double Uniform() { return static_cast<double>(Next() >> 11) * 0x1.0p-53; }  // [0, 1)
-  double Uniform(double lo, double hi) { return lo + (hi - lo) * Uniform(); }
-};
 
 // Uniform on SO(3) (Shoemake, "Uniform random rotations", Graphics Gems III).
 Eigen::Matrix3d RandomRotation(SplitMix* rng) {
