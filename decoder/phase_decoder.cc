@@ -6,8 +6,6 @@
 #include <cstring>
 #include <limits>
 #include <memory>
-#include <system_error>
-#include <thread>
 #include <vector>
 
 #include <Eigen/Dense>
@@ -16,6 +14,7 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "decoder/chunk_workers.h"
 #include "projector/patterns.h"
 
 namespace sope {
@@ -533,29 +532,15 @@ void DecodeAll(const Plan& plan, const std::vector<cv::Mat>& images, const Thres
   for (const cv::Mat& image : images) frames.push_back(image.ptr<Pixel>());
   const size_t total = images.front().total();
   const size_t num_chunks = (total + kChunkPixels - 1) / kChunkPixels;
-  const size_t num_workers =
-      std::max<size_t>(1, std::min(static_cast<size_t>(num_threads), num_chunks));
+  const size_t num_workers = NumChunkWorkers(num_threads, num_chunks);
+  // Workspaces are allocated here so that no worker can fail.
   std::vector<ChunkDecoder<Pixel>> decoders;
   decoders.reserve(num_workers);
   for (size_t w = 0; w < num_workers; ++w) decoders.emplace_back(plan, frames, thresholds, outputs);
-  auto run = [&](size_t worker) {
-    const size_t first = num_chunks * worker / num_workers;
-    const size_t last = num_chunks * (worker + 1) / num_workers;
-    for (size_t chunk = first; chunk < last; ++chunk) {
-      const size_t begin = chunk * kChunkPixels;
-      decoders[worker].Decode(begin, static_cast<int>(std::min<size_t>(kChunkPixels, total - begin)));
-    }
-  };
-  std::vector<std::thread> threads;
-  size_t started = 1;
-  try {
-    for (; started < num_workers; ++started) threads.emplace_back(run, started);
-  } catch (const std::system_error&) {
-    // No more threads: the caller decodes the remaining shares itself.
-  }
-  for (size_t worker = started; worker < num_workers; ++worker) run(worker);
-  run(0);
-  for (std::thread& thread : threads) thread.join();
+  RunChunksOnWorkers(num_chunks, num_workers, [&](size_t worker, size_t chunk) {
+    const size_t begin = chunk * kChunkPixels;
+    decoders[worker].Decode(begin, static_cast<int>(std::min<size_t>(kChunkPixels, total - begin)));
+  });
 }
 
 // The speckle filter (DecoderOptions::min_consistent_neighbours) on sub-pixel maps: a
