@@ -34,6 +34,7 @@
 #include <fmt/format.h>
 
 #include "bench/bench_support.h"
+#include "core/statistics.h"
 #include "capture/rig_session.h"
 #include "recogniser/database.h"
 #include "recogniser/recogniser.h"
@@ -112,17 +113,42 @@ const Input& GetInput() {
   return *input;
 }
 
-double Percentile(std::vector<double> values, double fraction) {
-  std::sort(values.begin(), values.end());
-  const size_t index =
-      std::min(values.size() - 1, static_cast<size_t>(fraction * (values.size() - 1) + 0.5));
-  return values[index];
+void Report(benchmark::State& state, const std::string& name, const std::vector<double>& values) {
+  state.counters[name + "_median_ms"] = Quantile(values, 0.5);
+  state.counters[name + "_p95_ms"] = Quantile(values, 0.95);
 }
 
-void Report(benchmark::State& state, const std::string& name, const std::vector<double>& values) {
-  state.counters[name + "_median_ms"] = Percentile(values, 0.5);
-  state.counters[name + "_p95_ms"] = Percentile(values, 0.95);
-}
+// Per-scan times and the class check of one configuration, reported as the counters every
+// configuration shares.
+struct LatencySamples {
+  std::vector<double> total, decode, triangulate, segment, recognise;
+  int correct = 0, runs = 0;
+
+  void Add(benchmark::State& state, double ms, const ScanRecognition& result,
+           const RecognitionScene& scene) {
+    state.SetIterationTime(ms / 1e3);
+    total.push_back(ms);
+    decode.push_back(result.timing.decode);
+    triangulate.push_back(result.timing.triangulate);
+    segment.push_back(result.timing.segment);
+    recognise.push_back(result.timing.recognise);
+    correct += !result.recognition.empty() &&
+               result.recognition.best().class_name == ToString(scene.object_class);
+    ++runs;
+  }
+
+  void Report(benchmark::State& state) const {
+    sope::Report(state, "frame_to_result", total);
+    sope::Report(state, "decode", decode);
+    sope::Report(state, "triangulate", triangulate);
+    sope::Report(state, "segment", segment);
+    sope::Report(state, "recognise", recognise);
+    state.counters["thesis_ms"] = kThesisMs;
+    state.counters["ratio"] = Quantile(total, 0.5) / kThesisMs;
+    // Class top-1 on these unseen instances (a sanity figure, not the accuracy benchmark).
+    state.counters["class_correct"] = runs ? static_cast<double>(correct) / runs : 0.0;
+  }
+};
 
 void RunLatency(benchmark::State& state, bool thesis) {
   const Input& input = GetInput();
@@ -130,8 +156,7 @@ void RunLatency(benchmark::State& state, bool thesis) {
   const Recogniser recogniser(db);
   const RecognitionOptions options =
       thesis ? RecognitionOptions::ThesisPreset(db.options().hash.method) : RecognitionOptions();
-  std::vector<double> total, decode, triangulate, segment, recognise;
-  int correct = 0, runs = 0;
+  LatencySamples samples;
   size_t k = 0;
   for (auto _ : state) {
     const Scan& scan = input.scans[k++ % input.scans.size()];
@@ -142,26 +167,10 @@ void RunLatency(benchmark::State& state, bool thesis) {
     const double ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
             .count();
-    state.SetIterationTime(ms / 1e3);
-    total.push_back(ms);
-    decode.push_back(result.timing.decode);
-    triangulate.push_back(result.timing.triangulate);
-    segment.push_back(result.timing.segment);
-    recognise.push_back(result.timing.recognise);
-    correct += !result.recognition.empty() &&
-               result.recognition.best().class_name == ToString(scan.scene.object_class);
-    ++runs;
+    samples.Add(state, ms, result, scan.scene);
   }
-  Report(state, "frame_to_result", total);
-  Report(state, "decode", decode);
-  Report(state, "triangulate", triangulate);
-  Report(state, "segment", segment);
-  Report(state, "recognise", recognise);
-  state.counters["thesis_ms"] = kThesisMs;
-  state.counters["ratio"] = Percentile(total, 0.5) / kThesisMs;
-  state.counters["recognise_ratio"] = Percentile(recognise, 0.5) / kThesisMs;
-  // Class top-1 on these unseen instances (a sanity figure, not the accuracy benchmark).
-  state.counters["class_correct"] = runs ? static_cast<double>(correct) / runs : 0.0;
+  samples.Report(state);
+  state.counters["recognise_ratio"] = Quantile(samples.recognise, 0.5) / kThesisMs;
   state.SetLabel(thesis ? "thesis database + ThesisPreset" : "sope database + defaults");
 }
 
@@ -179,8 +188,7 @@ void BM_FrameToResult_Overlapped(benchmark::State& state) {
   triangulation.num_threads = static_cast<int>(state.range(0));
   const Triangulator triangulator(input.calibration, triangulation);
   IncrementalDecoder decoder(input.scans.front().frames.manifest);
-  std::vector<double> total, decode, triangulate, segment, recognise;
-  int correct = 0, runs = 0;
+  LatencySamples samples;
   size_t k = 0;
   for (auto _ : state) {
     const Scan& scan = input.scans[k++ % input.scans.size()];
@@ -200,24 +208,9 @@ void BM_FrameToResult_Overlapped(benchmark::State& state) {
     const double ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
             .count();
-    state.SetIterationTime(ms / 1e3);
-    total.push_back(ms);
-    decode.push_back(result.timing.decode);
-    triangulate.push_back(result.timing.triangulate);
-    segment.push_back(result.timing.segment);
-    recognise.push_back(result.timing.recognise);
-    correct += !result.recognition.empty() &&
-               result.recognition.best().class_name == ToString(scan.scene.object_class);
-    ++runs;
+    samples.Add(state, ms, result, scan.scene);
   }
-  Report(state, "frame_to_result", total);
-  Report(state, "decode", decode);
-  Report(state, "triangulate", triangulate);
-  Report(state, "segment", segment);
-  Report(state, "recognise", recognise);
-  state.counters["thesis_ms"] = kThesisMs;
-  state.counters["ratio"] = Percentile(total, 0.5) / kThesisMs;
-  state.counters["class_correct"] = runs ? static_cast<double>(correct) / runs : 0.0;
+  samples.Report(state);
   state.SetLabel(fmt::format("sope database + defaults, decoded during capture, {} thread(s)",
                              triangulation.num_threads));
 }

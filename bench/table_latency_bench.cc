@@ -23,6 +23,7 @@
 
 #include "bench/bench_support.h"
 #include "core/error.h"
+#include "core/statistics.h"
 #include "pipeline/scan_source.h"
 #include "recogniser/database.h"
 #include "recogniser/scene_recognition.h"
@@ -92,13 +93,6 @@ const Input& GetInput() {
   return *input;
 }
 
-double Percentile(std::vector<double> values, double fraction) {
-  std::sort(values.begin(), values.end());
-  const size_t index =
-      std::min(values.size() - 1, static_cast<size_t>(fraction * (values.size() - 1) + 0.5));
-  return values[index];
-}
-
 std::vector<double> table_totals, single_totals;
 
 void BM_Table_AllObjects(benchmark::State& state) {
@@ -123,9 +117,9 @@ void BM_Table_AllObjects(benchmark::State& state) {
     known += static_cast<int>(in.truth->objects.size());
   }
   table_totals = total;
-  state.counters["frame_to_results_median_ms"] = Percentile(total, 0.5);
-  state.counters["frame_to_results_p95_ms"] = Percentile(total, 0.95);
-  state.counters["scene_recognition_median_ms"] = Percentile(scene_ms, 0.5);
+  state.counters["frame_to_results_median_ms"] = Quantile(total, 0.5);
+  state.counters["frame_to_results_p95_ms"] = Quantile(total, 0.95);
+  state.counters["scene_recognition_median_ms"] = Quantile(scene_ms, 0.5);
   state.counters["goal_ms"] = kGoalMs;
   state.counters["objects_reported_per_truth"] = known ? static_cast<double>(found) / known : 0.0;
   state.SetLabel("5 objects on a table: decode + triangulate + segment + every cluster + verify");
@@ -149,10 +143,10 @@ void BM_SingleObjectPath(benchmark::State& state) {
     total.push_back(ms);
   }
   single_totals = total;
-  state.counters["frame_to_result_median_ms"] = Percentile(total, 0.5);
-  state.counters["frame_to_result_p95_ms"] = Percentile(total, 0.95);
+  state.counters["frame_to_result_median_ms"] = Quantile(total, 0.5);
+  state.counters["frame_to_result_p95_ms"] = Quantile(total, 0.95);
   if (!table_totals.empty()) {
-    state.counters["table_ratio"] = Percentile(table_totals, 0.5) / Percentile(total, 0.5);
+    state.counters["table_ratio"] = Quantile(table_totals, 0.5) / Quantile(total, 0.5);
   }
   state.SetLabel("peer: range band + one recognition on the same frames");
 }
