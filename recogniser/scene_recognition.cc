@@ -8,6 +8,7 @@
 
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
+#include <spdlog/spdlog.h>
 
 #include "core/error.h"
 #include "core/stopwatch.h"
@@ -69,7 +70,37 @@ double CentreOfMassHeight(const PointCloud& surface, const Rigid3d& cam_from_mod
   return plane.Height(centroid.cast<float>()) / diameter;
 }
 
+// The class probability the recogniser gave `class_index` (0 when it gave none).
+double ClassProbability(const RecognitionResult& recognition, int class_index) {
+  for (const ClassScore& c : recognition.classes) {
+    if (c.class_index == class_index) return c.probability;
+  }
+  return 0.0;
+}
+
 }  // namespace
+
+// Which acceptance rule a hypothesis failed ("" when accepted).
+std::string RejectionReason(const HypothesisEvidence& e, const SceneVerificationOptions& options) {
+  if (e.accepted) return "";
+  std::string why;
+  auto add = [&why](const std::string& part) { why += (why.empty() ? "" : ", ") + part; };
+  if (e.explained.empty()) add("explains no scene point");
+  if (e.model_fit < options.min_model_fit) {
+    add(fmt::format("model fit {:.2f} < {:.2f}", e.model_fit, options.min_model_fit));
+  }
+  if (e.local_explained < options.min_local_explained) {
+    add(fmt::format("local explained {:.2f} < {:.2f}", e.local_explained,
+                    options.min_local_explained));
+  }
+  if (e.violation_fraction > options.max_violation_fraction) {
+    add(fmt::format("free-space violations {:.2f} > {:.2f}", e.violation_fraction,
+                    options.max_violation_fraction));
+  }
+  if (!why.empty()) why += " (instance level)";
+  if (why.empty()) add("gain (points another hypothesis explains, violations, stability)");
+  return why;
+}
 
 struct SceneRecogniser::Cache {
   std::mutex mutex;
@@ -239,7 +270,12 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
                             std::max(0.0, CentreOfMassHeight(surface, s.cam_from_model, plane,
                                                              database_.model(s.model).diameter))
                       : 0.0;
-      scene_hypotheses.push_back({&surface, s.cam_from_model, prior});
+      const std::vector<ClassScore>& classes = h.recognition.classes;
+      const double class_probability =
+          !classes.empty() && classes.front().class_index == s.class_index
+              ? classes.front().probability
+              : 0.0;
+      scene_hypotheses.push_back({&surface, s.cam_from_model, prior, class_probability});
     }
     // The segmentation cut everything below min_height (+ the plane noise) away: model
     // points there have nothing to fit.
@@ -289,6 +325,22 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     if (added) evidence = verify();
   }
   result.hypotheses = static_cast<int>(hypotheses.size());
+  if (spdlog::should_log(spdlog::level::debug)) {
+    for (size_t h = 0; h < hypotheses.size(); ++h) {
+      const Suggestion& s = hypotheses[h].recognition.suggestions[0];
+      const HypothesisEvidence& e = evidence[h];
+      const Eigen::Vector3f& c = clusters[hypotheses[h].cluster].centroid;
+      spdlog::debug("hypothesis cluster={} centroid=({:.4f},{:.4f},{:.4f}) class={} model={} "
+                    "score={:.3f} class_p={:.3f} flipped={} fit={:.3f} local={:.3f} "
+                    "viol={:.3f} visible={} explained={} passes={} accepted={} class_level={} "
+                    "why={}",
+                    hypotheses[h].cluster, c.x(), c.y(), c.z(), s.class_name, s.model_name,
+                    s.score, ClassProbability(hypotheses[h].recognition, s.class_index),
+                    hypotheses[h].flipped, e.model_fit, e.local_explained, e.violation_fraction,
+                    e.visible, e.explained.size(), e.passes, e.accepted, e.class_level,
+                    RejectionReason(e, options.verification));
+    }
+  }
 
   // Objects: the accepted hypotheses with their segments.
   const std::vector<uint8_t> explained = explained_mask();
@@ -308,6 +360,7 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     object.cluster = hypotheses[h].cluster;
     object.snap_m = hypotheses[h].snap;
     object.visible_fraction = evidence[h].visible_fraction;
+    object.class_level = evidence[h].class_level;
     object.evidence = std::move(evidence[h]);
     object_of_hypothesis[h] = static_cast<int>(result.objects.size());
     result.objects.push_back(std::move(object));
@@ -340,6 +393,21 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
       unknown.guess_model = cluster_results[c].best().model_name;
       unknown.guess_score = cluster_results[c].best().score;
     }
+    int closest = -1;  // the cluster's hypothesis that came closest to passing
+    for (size_t h = 0; h < hypotheses.size(); ++h) {
+      if (hypotheses[h].cluster != static_cast<int>(c) || evidence[h].accepted) continue;
+      const auto merit = [&](size_t k) {
+        return std::min(evidence[k].model_fit, evidence[k].local_explained);
+      };
+      if (closest < 0 || merit(h) > merit(closest)) closest = static_cast<int>(h);
+    }
+    if (closest >= 0) {
+      const HypothesisEvidence& e = evidence[closest];
+      unknown.guess_model_fit = e.model_fit;
+      unknown.guess_local_explained = e.local_explained;
+      unknown.guess_violations = e.violation_fraction;
+      unknown.rejected_by = RejectionReason(e, options.verification);
+    }
     result.unknown.push_back(std::move(unknown));
   }
   std::stable_sort(result.objects.begin(), result.objects.end(),
@@ -363,6 +431,10 @@ std::string SceneRecognitionResultToJson(const SceneRecognitionResult& result) {
     o["points"] = object.indices.size();
     o["visible_fraction"] = object.visible_fraction;
     o["verified"] = object.verified;
+    // "instance": the database model explains the scan; "class": an instance of the class
+    // the recogniser ranked first, not fitting any database model exactly ("model" is then
+    // the nearest database instance, whose pose is given).
+    o["match_level"] = object.class_level ? "class" : "instance";
     o["cluster"] = object.cluster;
     o["snap_m"] = object.snap_m;
     o["model_fit_scene"] = object.evidence.model_fit;
@@ -377,6 +449,12 @@ std::string SceneRecognitionResultToJson(const SceneRecognitionResult& result) {
                         {"centroid", {u.centroid.x(), u.centroid.y(), u.centroid.z()}}};
     if (!u.guess_model.empty()) {
       o["guess"] = {{"class", u.guess_class}, {"model", u.guess_model}, {"score", u.guess_score}};
+    }
+    if (!u.rejected_by.empty()) {
+      o["rejected_by"] = u.rejected_by;
+      o["model_fit_scene"] = u.guess_model_fit;
+      o["local_explained"] = u.guess_local_explained;
+      o["violation_fraction"] = u.guess_violations;
     }
     unknown.push_back(std::move(o));
   }
@@ -409,10 +487,11 @@ std::string SceneBriefReport(const SceneRecognitionResult& result) {
     const RecognisedObject& o = result.objects[i];
     const Suggestion& s = o.best();
     report += fmt::format("{}. {:<12} {:<20} score {:.3f}  {} points  t = ({:.3f}, {:.3f}, "
-                          "{:.3f}) m\n",
+                          "{:.3f}) m{}\n",
                           i + 1, s.class_name, s.model_name, s.score, o.indices.size(),
                           s.cam_from_model.translation.x(), s.cam_from_model.translation.y(),
-                          s.cam_from_model.translation.z());
+                          s.cam_from_model.translation.z(),
+                          o.class_level ? "  (class level: an instance not in the database)" : "");
   }
   for (const UnknownObject& u : result.unknown) {
     report += fmt::format("unknown object: {} points at ({:.3f}, {:.3f}, {:.3f}) m{}\n",

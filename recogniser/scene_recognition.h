@@ -70,6 +70,9 @@ struct RecognisedObject {
   double snap_m = 0.0;     // the shift along the table normal the plane prior applied
   HypothesisEvidence evidence;
   bool verified = true;    // accepted by the scene verification
+  // Accepted at class level only (HypothesisEvidence::class_level): an instance of the
+  // class not in the database; recognition.best() is the nearest database instance.
+  bool class_level = false;
   const Suggestion& best() const { return recognition.best(); }
 };
 
@@ -80,6 +83,10 @@ struct UnknownObject {
   // The rejected best guess (empty when the recogniser refused the cluster or gave none).
   std::string guess_class, guess_model;
   double guess_score = 0.0;
+  // The scene verification's evidence on the cluster's best-fitting hypothesis and the
+  // rule it failed (RejectionReason); empty when there was no hypothesis.
+  double guess_model_fit = 0.0, guess_local_explained = 0.0, guess_violations = 0.0;
+  std::string rejected_by;
 };
 
 struct SceneTimings {  // milliseconds, wall clock
@@ -98,10 +105,16 @@ struct SceneRecognitionResult {
   bool empty() const { return objects.empty(); }
 };
 
+// Which acceptance rule of the scene verification `evidence` failed, e.g. "model fit 0.52 <
+// 0.60"; "gain (…)" when it passed the fit tests but the global selection left it out;
+// empty when it was accepted.
+std::string RejectionReason(const HypothesisEvidence& evidence,
+                            const SceneVerificationOptions& options);
+
 // One JSON line (DESIGN.md "Recognition result"): the best object's recognition result at
 // the top level (RecognitionResultToJson; no object: "recognised": false, no class), and
 // "objects": [each the per-object result fields plus "points", "visible_fraction",
-// "verified", "cluster", "snap_m"], "unknown": [{"points", "centroid", "guess"}], "table":
+// "verified", "match_level" ("instance" or "class"), "cluster", "snap_m"], "unknown": [{"points", "centroid", "guess"}], "table":
 // {"found", "normal", "offset_m", "inliers"}, "clusters", and the scene's timings
 // ("scene_ms": segment, recognise, verify, total).
 std::string SceneRecognitionResultToJson(const SceneRecognitionResult& result);

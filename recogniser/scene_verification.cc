@@ -65,11 +65,17 @@ class DepthGrid {
 void SceneVerificationOptions::Check() const {
   SOPE_CHECK(inlier_distance > 0, "scene verification: inlier distance must be > 0 m, got {}",
              inlier_distance);
+  SOPE_CHECK(class_inlier_distance >= inlier_distance,
+             "scene verification: class inlier distance must be ≥ the inlier distance ({} m), "
+             "got {}",
+             inlier_distance, class_inlier_distance);
   SOPE_CHECK(violation_distance > 0,
              "scene verification: violation distance must be > 0 m, got {}", violation_distance);
   SOPE_CHECK(ray_cell > 0, "scene verification: ray cell must be > 0, got {}", ray_cell);
-  for (const double fraction : {min_model_fit, min_local_explained, max_violation_fraction,
-                                min_gain_fraction}) {
+  for (const double fraction :
+       {min_model_fit, min_local_explained, max_violation_fraction, min_gain_fraction,
+        min_class_probability, class_min_model_fit, class_min_local_explained,
+        class_max_violation_fraction}) {
     SOPE_CHECK(fraction >= 0.0 && fraction <= 1.0,
                "scene verification: fractions must lie in [0, 1], got {}", fraction);
   }
@@ -124,37 +130,68 @@ std::vector<HypothesisEvidence> VerifyHypotheses(
     }
     // Scene points near the model's visible surface: explained; model points near the
     // scene: fitting.
-    const ProjectiveGrid model_grid(visible_points, {}, static_cast<float>(options.ray_cell));
     const Eigen::Vector3f margin = Eigen::Vector3f::Constant(static_cast<float>(options.box_margin));
     box_min -= margin;
     box_max += margin;
     const Eigen::Matrix3f model_from_cam = rotation.transpose();
-    std::vector<uint8_t> fits(visible_points.size(), 0);
-    for (size_t j = 0; j < scene.size(); ++j) {
-      const Eigen::Vector3f q = model_from_cam * (scene.points[j] - translation);
-      const bool in_box = (q.array() >= box_min.array()).all() && (q.array() <= box_max.array()).all();
-      if (in_box) ++e.local;
-      if (!in_box) continue;
-      float d2 = 0;
-      const int nearest =
-          model_grid.Nearest(scene.points[j], Eigen::Vector3f::Zero(), 0.0f, 1, inlier2, &d2);
-      if (nearest >= 0) {
-        e.explained.push_back(static_cast<int>(j));
-        fits[nearest] = 1;
+    // Explained scene points (in the box, within `distance` of a visible model point) and
+    // the fitting model points, with a grid whose window of one cell spans `distance`.
+    auto explain = [&](double distance, std::vector<int>* explained, int* fitting, int* local) {
+      const float cell = static_cast<float>(options.ray_cell * distance / options.inlier_distance);
+      const ProjectiveGrid model_grid(visible_points, {}, cell);
+      const float distance2 = static_cast<float>(distance * distance);
+      std::vector<uint8_t> fits(visible_points.size(), 0);
+      explained->clear();
+      *local = 0;
+      for (size_t j = 0; j < scene.size(); ++j) {
+        const Eigen::Vector3f q = model_from_cam * (scene.points[j] - translation);
+        const bool in_box =
+            (q.array() >= box_min.array()).all() && (q.array() <= box_max.array()).all();
+        if (!in_box) continue;
+        ++*local;
+        float d2 = 0;
+        const int nearest =
+            model_grid.Nearest(scene.points[j], Eigen::Vector3f::Zero(), 0.0f, 1, distance2, &d2);
+        if (nearest >= 0) {
+          explained->push_back(static_cast<int>(j));
+          fits[nearest] = 1;
+        }
       }
-    }
-    // A visible point on observed depth without an explained scene point near it still
-    // fits when the scene (outside the box, e.g. a neighbour) has one: count it from the
-    // scene side only, as above, to stay symmetric with `explained`.
-    for (const uint8_t f : fits) e.fitting += f;
+      // Counted from the scene side only (a visible point fits when a scene point in the box
+      // is near it), to stay symmetric with `explained`.
+      *fitting = 0;
+      for (const uint8_t f : fits) *fitting += f;
+    };
+    explain(options.inlier_distance, &e.explained, &e.fitting, &e.local);
     const int unoccluded = std::max(1, e.visible - e.occluded - e.empty);
     e.model_fit = std::min(1.0, static_cast<double>(e.fitting) / unoccluded);
     e.violation_fraction = static_cast<double>(e.violations) / unoccluded;
     e.local_explained = e.local > 0 ? static_cast<double>(e.explained.size()) / e.local : 0.0;
     e.visible_fraction = e.visible > 0 ? static_cast<double>(e.fitting) / e.visible : 0.0;
-    e.passes = e.model_fit >= options.min_model_fit &&
-               e.local_explained >= options.min_local_explained &&
-               e.violation_fraction <= options.max_violation_fraction && !e.explained.empty();
+    const bool instance = e.model_fit >= options.min_model_fit &&
+                          e.local_explained >= options.min_local_explained &&
+                          e.violation_fraction <= options.max_violation_fraction;
+    if (!instance && hypothesis.class_probability >= options.min_class_probability &&
+        e.violation_fraction <= options.class_max_violation_fraction) {
+      // Class level: the same tests at the class inlier distance (another instance's surface
+      // lies some millimetres off the database model's), with their own thresholds.
+      std::vector<int> explained;
+      int fitting = 0, local = 0;
+      explain(options.class_inlier_distance, &explained, &fitting, &local);
+      const double fit = std::min(1.0, static_cast<double>(fitting) / unoccluded);
+      const double local_explained =
+          local > 0 ? static_cast<double>(explained.size()) / local : 0.0;
+      if (fit >= options.class_min_model_fit &&
+          local_explained >= options.class_min_local_explained && !explained.empty()) {
+        e.class_level = true;
+        e.model_fit = fit;
+        e.local_explained = local_explained;
+        e.fitting = fitting;
+        e.visible_fraction = e.visible > 0 ? static_cast<double>(fitting) / e.visible : 0.0;
+        e.explained = std::move(explained);
+      }
+    }
+    e.passes = (instance || e.class_level) && !e.explained.empty();
   }
 
   // Greedy global selection.

@@ -44,6 +44,99 @@ bool FitPlane(const std::vector<Eigen::Vector3f>& points, const std::vector<int>
   return true;
 }
 
+// Connected components of `points` under "distance ≤ tolerance": union-find over a hash
+// grid of cells `tolerance` wide (a point's neighbours within the tolerance lie in its own
+// cell or the 26 around it). Returns each component's point indices, in increasing order
+// of their first point.
+std::vector<std::vector<int>> GridEuclideanClusters(const std::vector<Eigen::Vector3f>& points,
+                                                    double tolerance) {
+  const size_t n = points.size();
+  const float inv_cell = static_cast<float>(1.0 / tolerance);
+  const float tolerance2 = static_cast<float>(tolerance * tolerance);
+  auto cell_key = [](int64_t x, int64_t y, int64_t z) {
+    return (static_cast<uint64_t>(x + (1 << 20)) << 42) ^
+           (static_cast<uint64_t>(y + (1 << 20)) << 21) ^ static_cast<uint64_t>(z + (1 << 20));
+  };
+  std::vector<Eigen::Vector3i> cell_of(n);
+  std::vector<std::pair<uint64_t, int>> keyed(n);
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3f c = points[i] * inv_cell;
+    cell_of[i] = Eigen::Vector3i(static_cast<int>(std::floor(c.x())),
+                                 static_cast<int>(std::floor(c.y())),
+                                 static_cast<int>(std::floor(c.z())));
+    keyed[i] = {cell_key(cell_of[i].x(), cell_of[i].y(), cell_of[i].z()), static_cast<int>(i)};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  std::unordered_map<uint64_t, std::pair<int, int>> cells;  // key → range in `keyed`
+  cells.reserve(n);
+  for (size_t k = 0; k < n;) {
+    size_t end = k;
+    while (end < n && keyed[end].first == keyed[k].first) ++end;
+    cells.emplace(keyed[k].first, std::make_pair(static_cast<int>(k), static_cast<int>(end)));
+    k = end;
+  }
+  std::vector<int> parent(n);
+  for (size_t i = 0; i < n; ++i) parent[i] = static_cast<int>(i);
+  auto find = [&parent](int i) {
+    while (parent[i] != i) {
+      parent[i] = parent[parent[i]];
+      i = parent[i];
+    }
+    return i;
+  };
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3i& c = cell_of[i];
+    for (int dz = -1; dz <= 1; ++dz) {
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dx = -1; dx <= 1; ++dx) {
+          const auto it = cells.find(cell_key(c.x() + dx, c.y() + dy, c.z() + dz));
+          if (it == cells.end()) continue;
+          for (int k = it->second.first; k < it->second.second; ++k) {
+            const int j = keyed[k].second;
+            if (j <= static_cast<int>(i)) continue;  // each pair once
+            if ((points[j] - points[i]).squaredNorm() > tolerance2) continue;
+            const int a = find(static_cast<int>(i)), b = find(j);
+            if (a != b) parent[std::max(a, b)] = std::min(a, b);
+          }
+        }
+      }
+    }
+  }
+  std::vector<int> component_of_root(n, -1);
+  std::vector<std::vector<int>> components;
+  for (size_t i = 0; i < n; ++i) {
+    const int root = find(static_cast<int>(i));
+    if (component_of_root[root] < 0) {
+      component_of_root[root] = static_cast<int>(components.size());
+      components.emplace_back();
+    }
+    components[component_of_root[root]].push_back(static_cast<int>(i));
+  }
+  return components;
+}
+
+// The same components by PCL (kd-tree radius searches): the former method, kept as the
+// benchmark's peer.
+std::vector<std::vector<int>> PclEuclideanClusters(const std::vector<Eigen::Vector3f>& points,
+                                                   double tolerance) {
+  pcl::PointCloud<pcl::PointXYZ>::Ptr thinned(new pcl::PointCloud<pcl::PointXYZ>);
+  thinned->reserve(points.size());
+  for (const Eigen::Vector3f& c : points) thinned->push_back(pcl::PointXYZ(c.x(), c.y(), c.z()));
+  pcl::search::KdTree<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
+  tree->setInputCloud(thinned);
+  pcl::EuclideanClusterExtraction<pcl::PointXYZ> extraction;
+  extraction.setClusterTolerance(tolerance);
+  extraction.setMinClusterSize(1);
+  extraction.setMaxClusterSize(std::numeric_limits<int>::max());
+  extraction.setSearchMethod(tree);
+  extraction.setInputCloud(thinned);
+  std::vector<pcl::PointIndices> clusters;
+  extraction.extract(clusters);
+  std::vector<std::vector<int>> out;
+  for (pcl::PointIndices& c : clusters) out.push_back(std::move(c.indices));
+  return out;
+}
+
 }  // namespace
 
 void TableSegmentationOptions::Check() const {
@@ -199,29 +292,21 @@ TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationO
     voxel_sum[it->second] += p.cast<double>();
     ++voxel_count[it->second];
   }
-  pcl::PointCloud<pcl::PointXYZ>::Ptr thinned(new pcl::PointCloud<pcl::PointXYZ>);
-  thinned->reserve(voxel_sum.size());
+  std::vector<Eigen::Vector3f> thinned(voxel_sum.size());
   for (size_t v = 0; v < voxel_sum.size(); ++v) {
-    const Eigen::Vector3f c = (voxel_sum[v] / voxel_count[v]).cast<float>();
-    thinned->push_back(pcl::PointXYZ(c.x(), c.y(), c.z()));
+    thinned[v] = (voxel_sum[v] / voxel_count[v]).cast<float>();
   }
 
   // 3. Euclidean clusters of the voxels.
   const double tolerance =
       options.cluster_tolerance > 0 ? options.cluster_tolerance : 2.5 * options.cluster_leaf;
-  pcl::search::KdTree<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
-  tree->setInputCloud(thinned);
-  pcl::EuclideanClusterExtraction<pcl::PointXYZ> extraction;
-  extraction.setClusterTolerance(tolerance);
-  extraction.setMinClusterSize(1);
-  extraction.setMaxClusterSize(std::numeric_limits<int>::max());
-  extraction.setSearchMethod(tree);
-  extraction.setInputCloud(thinned);
-  std::vector<pcl::PointIndices> voxel_clusters;
-  extraction.extract(voxel_clusters);
+  const std::vector<std::vector<int>> voxel_clusters =
+      options.clustering == TableSegmentationOptions::Clustering::kPclKdTree
+          ? PclEuclideanClusters(thinned, tolerance)
+          : GridEuclideanClusters(thinned, tolerance);
   std::vector<int> cluster_of_voxel(voxel_sum.size(), -1);
   for (size_t c = 0; c < voxel_clusters.size(); ++c) {
-    for (int v : voxel_clusters[c].indices) cluster_of_voxel[v] = static_cast<int>(c);
+    for (int v : voxel_clusters[c]) cluster_of_voxel[v] = static_cast<int>(c);
   }
   std::vector<ObjectCluster> clusters(voxel_clusters.size());
   for (size_t k = 0; k < above.size(); ++k) {
@@ -243,7 +328,11 @@ TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationO
   }
   std::stable_sort(out.clusters.begin(), out.clusters.end(),
                    [](const ObjectCluster& a, const ObjectCluster& b) {
-                     return a.indices.size() > b.indices.size();
+                     // Equal sizes: the first point first (an order both clusterings share).
+                     if (a.indices.size() != b.indices.size()) {
+                       return a.indices.size() > b.indices.size();
+                     }
+                     return a.indices.front() < b.indices.front();
                    });
   if (out.clusters.empty()) {
     out.message = fmt::format("nothing on the table: {} point(s) above the plane, no cluster of "
