@@ -145,54 +145,178 @@ void BoardDetectionOptions::Check() const {
              max_subpix_half_window_px);
   SOPE_CHECK(subpix_below_spacing_px >= 0, "subpix_below_spacing_px must be >= 0, got {}",
              subpix_below_spacing_px);
+  SOPE_CHECK(min_partial_corner_fraction > 0 && min_partial_corner_fraction <= 1,
+             "min_partial_corner_fraction must be in (0, 1], got {}", min_partial_corner_fraction);
+  SOPE_CHECK(partial_edge_squares >= 0 && partial_edge_squares <= 2,
+             "partial_edge_squares must be in [0, 2], got {}", partial_edge_squares);
 }
+
+namespace internal {
+namespace {
+
+cv::Mat ToGrey8(const cv::Mat& image, const char* caller) {
+  SOPE_CHECK(!image.empty() && image.channels() == 1 &&
+                 (image.depth() == CV_8U || image.depth() == CV_16U),
+             "{}: expected a CV_8UC1 or CV_16UC1 image, got {}", caller,
+             cv::typeToString(image.type()));
+  cv::Mat grey = image;
+  if (image.depth() == CV_16U) image.convertTo(grey, CV_8U, 1.0 / 257.0);
+  return grey;
+}
+
+// Smallest and median distance between grid neighbours (cols × rows, row-major), pixels.
+std::pair<double, double> Spacings(const std::vector<cv::Point2f>& corners, int cols, int rows) {
+  std::vector<double> distances;
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) {
+      const cv::Point2f& p = corners[r * cols + c];
+      if (c + 1 < cols) distances.push_back(cv::norm(corners[r * cols + c + 1] - p));
+      if (r + 1 < rows) distances.push_back(cv::norm(corners[(r + 1) * cols + c] - p));
+    }
+  }
+  std::sort(distances.begin(), distances.end());
+  return {distances.front(), distances[distances.size() / 2]};
+}
+
+void RefineCorners(const cv::Mat& grey, const BoardDetectionOptions& options, double smallest,
+                   std::vector<cv::Point2f>* corners) {
+  const int half = std::clamp(static_cast<int>(options.subpix_window_fraction * smallest), 2,
+                              options.max_subpix_half_window_px);
+  cv::cornerSubPix(grey, *corners, cv::Size(half, half), cv::Size(-1, -1),
+                   cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
+}
+
+int SectorBasedFlags(const BoardDetectionOptions& options) {
+  int flags = 0;
+  if (options.normalize_image) flags |= cv::CALIB_CB_NORMALIZE_IMAGE;
+  if (options.accuracy) flags |= cv::CALIB_CB_ACCURACY;
+  if (options.exhaustive) flags |= cv::CALIB_CB_EXHAUSTIVE;
+  return flags;
+}
+
+// Removes the outer columns and rows of a grid (cols × rows, row-major) while one of
+// their corners lies within `edge_squares` local squares of the image edge, keeping at
+// least min_side corners along each side.
+void TrimCornersAtTheBorder(cv::Size image, double edge_squares, int min_side,
+                            std::vector<Eigen::Vector2d>* corners, int* cols, int* rows) {
+  const auto at = [&](int c, int r) -> const Eigen::Vector2d& {
+    return (*corners)[r * *cols + c];
+  };
+  // Whether corner (c, r) is within the margin, its square size from a grid neighbour.
+  const auto near_edge = [&](int c, int r) {
+    const Eigen::Vector2d& p = at(c, r);
+    const Eigen::Vector2d& q = at(c + (c + 1 < *cols ? 1 : -1), r);
+    const double margin = edge_squares * (p - q).norm();
+    return p.x() < margin || p.y() < margin || p.x() > image.width - 1 - margin ||
+           p.y() > image.height - 1 - margin;
+  };
+  // Fraction of a column's or a row's corners within the margin.
+  const auto column_near = [&](int c) {
+    int near = 0;
+    for (int r = 0; r < *rows; ++r) near += near_edge(c, r);
+    return static_cast<double>(near) / *rows;
+  };
+  const auto row_near = [&](int r) {
+    int near = 0;
+    for (int c = 0; c < *cols; ++c) near += near_edge(c, r);
+    return static_cast<double>(near) / *cols;
+  };
+  // Keeps columns [c0, c1) and rows [r0, r1).
+  const auto keep = [&](int c0, int c1, int r0, int r1) {
+    std::vector<Eigen::Vector2d> kept;
+    for (int r = r0; r < r1; ++r) {
+      for (int c = c0; c < c1; ++c) kept.push_back(at(c, r));
+    }
+    *corners = std::move(kept);
+    *cols = c1 - c0;
+    *rows = r1 - r0;
+  };
+  // Each round drops the outer column or row with the largest share of such corners (a
+  // board cut along one edge loses the line along that edge, not the lines across it).
+  while (true) {
+    const double shares[4] = {*cols > min_side ? column_near(0) : 0.0,
+                              *cols > min_side ? column_near(*cols - 1) : 0.0,
+                              *rows > min_side ? row_near(0) : 0.0,
+                              *rows > min_side ? row_near(*rows - 1) : 0.0};
+    const int side = static_cast<int>(std::max_element(shares, shares + 4) - shares);
+    if (shares[side] <= 0.0) break;
+    if (side == 0) keep(1, *cols, 0, *rows);
+    if (side == 1) keep(0, *cols - 1, 0, *rows);
+    if (side == 2) keep(0, *cols, 1, *rows);
+    if (side == 3) keep(0, *cols, 0, *rows - 1);
+  }
+}
+
+// Whether a visible grid (cols × rows corners, row-major) missing `missing_cols` columns
+// and `missing_rows` rows of its board can have lost them only to the image border: along
+// each direction with corners missing, the grid extended by one square on at least one
+// side reaches outside the image or within `edge_squares` local squares of its edge.
+bool MissingPartOutsideImage(const std::vector<Eigen::Vector2d>& corners, int cols, int rows,
+                             int missing_cols, int missing_rows, cv::Size image,
+                             double edge_squares) {
+  std::vector<cv::Point2f> grid, pixels;
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) {
+      grid.emplace_back(static_cast<float>(c), static_cast<float>(r));
+      const Eigen::Vector2d& p = corners[r * cols + c];
+      pixels.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
+    }
+  }
+  const cv::Mat h = cv::findHomography(grid, pixels, 0);
+  if (h.empty()) return false;
+  const auto map = [&](double c, double r, Eigen::Vector2d* pixel) {
+    const double x = h.at<double>(0, 0) * c + h.at<double>(0, 1) * r + h.at<double>(0, 2);
+    const double y = h.at<double>(1, 0) * c + h.at<double>(1, 1) * r + h.at<double>(1, 2);
+    const double w = h.at<double>(2, 0) * c + h.at<double>(2, 1) * r + h.at<double>(2, 2);
+    if (!(w > 1e-12)) return false;  // beyond the horizon: not in the image
+    *pixel = Eigen::Vector2d(x / w, y / w);
+    return pixel->allFinite();
+  };
+  // Corner (c, r) beyond the grid, `inward` the step back onto it.
+  const auto cut = [&](double c, double r, double dc, double dr) {
+    Eigen::Vector2d p, q;
+    if (!map(c, r, &p) || !map(c + dc, r + dr, &q)) return true;
+    const double margin = edge_squares * (p - q).norm();
+    return !(p.x() >= margin && p.y() >= margin && p.x() <= image.width - 1 - margin &&
+             p.y() <= image.height - 1 - margin);
+  };
+  const auto side_cut = [&](bool along_columns, int beyond, int inward) {
+    const int count = along_columns ? rows : cols;
+    for (int i = 0; i < count; ++i) {
+      if (along_columns ? cut(beyond, i, inward, 0) : cut(i, beyond, 0, inward)) return true;
+    }
+    return false;
+  };
+  if (missing_cols > 0 && !side_cut(true, -1, 1) && !side_cut(true, cols, -1)) return false;
+  if (missing_rows > 0 && !side_cut(false, -1, 1) && !side_cut(false, rows, -1)) return false;
+  return true;
+}
+
+}  // namespace
+}  // namespace internal
 
 std::optional<std::vector<Eigen::Vector2d>> DetectBoardCorners(
     const cv::Mat& image, const BoardSpec& board, const BoardDetectionOptions& options) {
   board.Check();
   options.Check();
-  SOPE_CHECK(!image.empty() && image.channels() == 1 &&
-                 (image.depth() == CV_8U || image.depth() == CV_16U),
-             "DetectBoardCorners: expected a CV_8UC1 or CV_16UC1 image, got {}",
-             cv::typeToString(image.type()));
-  cv::Mat grey = image;
-  if (image.depth() == CV_16U) image.convertTo(grey, CV_8U, 1.0 / 257.0);
+  const cv::Mat grey = internal::ToGrey8(image, "DetectBoardCorners");
   const cv::Size pattern_size(board.cols, board.rows);
   std::vector<cv::Point2f> found;
-  // Smallest and median distance between grid neighbours, pixels.
-  const auto spacings = [&](const std::vector<cv::Point2f>& corners) {
-    std::vector<double> distances;
-    for (int r = 0; r < board.rows; ++r) {
-      for (int c = 0; c < board.cols; ++c) {
-        const cv::Point2f& p = corners[r * board.cols + c];
-        if (c + 1 < board.cols) distances.push_back(cv::norm(corners[r * board.cols + c + 1] - p));
-        if (r + 1 < board.rows)
-          distances.push_back(cv::norm(corners[(r + 1) * board.cols + c] - p));
-      }
-    }
-    std::sort(distances.begin(), distances.end());
-    return std::pair{distances.front(), distances[distances.size() / 2]};
-  };
-  const auto refine = [&](std::vector<cv::Point2f>* corners, double smallest) {
-    const int half = std::clamp(static_cast<int>(options.subpix_window_fraction * smallest), 2,
-                                options.max_subpix_half_window_px);
-    cv::cornerSubPix(grey, *corners, cv::Size(half, half), cv::Size(-1, -1),
-                     cv::TermCriteria(cv::TermCriteria::EPS + cv::TermCriteria::COUNT, 100, 1e-4));
-  };
   if (options.detector == CornerDetector::kSectorBased) {
-    int flags = 0;
-    if (options.normalize_image) flags |= cv::CALIB_CB_NORMALIZE_IMAGE;
-    if (options.accuracy) flags |= cv::CALIB_CB_ACCURACY;
-    if (options.exhaustive) flags |= cv::CALIB_CB_EXHAUSTIVE;
-    if (!cv::findChessboardCornersSB(grey, pattern_size, found, flags)) return std::nullopt;
+    if (!cv::findChessboardCornersSB(grey, pattern_size, found,
+                                     internal::SectorBasedFlags(options))) {
+      return std::nullopt;
+    }
     if (static_cast<int>(found.size()) != board.NumCorners()) return std::nullopt;
-    const auto [smallest, median] = spacings(found);
-    if (median < options.subpix_below_spacing_px) refine(&found, smallest);
+    const auto [smallest, median] = internal::Spacings(found, board.cols, board.rows);
+    if (median < options.subpix_below_spacing_px)
+      internal::RefineCorners(grey, options, smallest, &found);
   } else {
     const int flags = cv::CALIB_CB_ADAPTIVE_THRESH | cv::CALIB_CB_NORMALIZE_IMAGE;
     if (!cv::findChessboardCorners(grey, pattern_size, found, flags)) return std::nullopt;
     if (static_cast<int>(found.size()) != board.NumCorners()) return std::nullopt;
-    refine(&found, spacings(found).first);
+    internal::RefineCorners(grey, options, internal::Spacings(found, board.cols, board.rows).first,
+                            &found);
   }
   if (static_cast<int>(found.size()) != board.NumCorners()) return std::nullopt;
   std::vector<Eigen::Vector2d> corners;
@@ -200,6 +324,107 @@ std::optional<std::vector<Eigen::Vector2d>> DetectBoardCorners(
   for (const cv::Point2f& p : found) corners.emplace_back(p.x, p.y);
   internal::CanonicaliseCornerOrder(grey, board, &corners);
   return corners;
+}
+
+BoardSpec BoardDetection::GridSpec(const BoardSpec& board) const {
+  BoardSpec grid = board;
+  grid.cols = grid_cols;
+  grid.rows = grid_rows;
+  return grid;
+}
+
+std::optional<BoardDetection> DetectBoard(const cv::Mat& image, const BoardSpec& board,
+                                          const BoardDetectionOptions& options) {
+  BoardDetection detection;
+  if (auto corners = DetectBoardCorners(image, board, options)) {
+    detection.corners = std::move(*corners);
+    detection.grid_cols = board.cols;
+    detection.grid_rows = board.rows;
+    for (int k = 0; k < board.NumCorners(); ++k) detection.indices.push_back(k);
+    return detection;
+  }
+  if (!options.partial) return std::nullopt;
+  const cv::Mat grey = internal::ToGrey8(image, "DetectBoard");
+  // The smallest grid SB accepts; CALIB_CB_LARGER grows it to the largest one in view.
+  constexpr int kMinGridSide = 3;
+  std::vector<cv::Point2f> found;
+  cv::Mat meta;
+  if (!cv::findChessboardCornersSB(grey, cv::Size(kMinGridSide, kMinGridSide), found,
+                                   internal::SectorBasedFlags(options) | cv::CALIB_CB_LARGER,
+                                   meta)) {
+    return std::nullopt;
+  }
+  int cols = meta.cols, rows = meta.rows;
+  if (cols < kMinGridSide || rows < kMinGridSide ||
+      static_cast<int>(found.size()) != cols * rows) {
+    return std::nullopt;
+  }
+  std::vector<Eigen::Vector2d> corners;
+  for (const cv::Point2f& p : found) corners.emplace_back(p.x, p.y);
+  // Corners whose squares the border cuts are placed less well (on synthetic boards up to
+  // 0.2 px off at a third of a square from the edge, against < 0.1 px inside): the grid
+  // loses its outer columns and rows while they have one.
+  internal::TrimCornersAtTheBorder(grey.size(), options.partial_edge_squares, kMinGridSide,
+                                   &corners, &cols, &rows);
+  const int min_corners = std::max(
+      kMinGridSide * kMinGridSide,
+      static_cast<int>(std::ceil(options.min_partial_corner_fraction * board.NumCorners())));
+  if (cols * rows < min_corners) return std::nullopt;
+  {
+    found.clear();
+    for (const Eigen::Vector2d& p : corners)
+      found.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
+    const auto [smallest, median] = internal::Spacings(found, cols, rows);
+    if (options.detector == CornerDetector::kClassic || median < options.subpix_below_spacing_px) {
+      internal::RefineCorners(grey, options, smallest, &found);
+      for (size_t i = 0; i < found.size(); ++i) corners[i] = Eigen::Vector2d(found[i].x, found[i].y);
+    }
+  }
+  // The grid's columns along the board's rows of corners, or (transposed) along its
+  // columns: the first way round whose missing part can lie outside the image.
+  bool accepted = false;
+  for (const bool transpose : {false, true}) {
+    const int board_cols = transpose ? board.rows : board.cols;
+    const int board_rows = transpose ? board.cols : board.rows;
+    if (cols > board_cols || rows > board_rows) continue;
+    if (!internal::MissingPartOutsideImage(corners, cols, rows, board_cols - cols,
+                                           board_rows - rows, grey.size(),
+                                           options.partial_edge_squares)) {
+      continue;
+    }
+    if (transpose) {
+      std::vector<Eigen::Vector2d> transposed(corners.size());
+      for (int r = 0; r < cols; ++r) {
+        for (int c = 0; c < rows; ++c) transposed[r * rows + c] = corners[c * cols + r];
+      }
+      corners = std::move(transposed);
+      std::swap(cols, rows);
+    }
+    accepted = true;
+    break;
+  }
+  if (!accepted) return std::nullopt;
+  // Right-handed with z away from the camera, as DetectBoardCorners: mirror the rows
+  // otherwise.
+  const auto at = [&](int c, int r) -> const Eigen::Vector2d& { return corners[r * cols + c]; };
+  if (internal::Cross2d(at(1, 0) - at(0, 0), at(0, 1) - at(0, 0)) < 0) {
+    for (int r = 0; r < rows; ++r) {
+      std::reverse(corners.begin() + r * cols, corners.begin() + (r + 1) * cols);
+    }
+  }
+  detection.grid_cols = cols;
+  detection.grid_rows = rows;
+  if (cols == board.cols && rows == board.rows) {
+    // The whole board after all (found by growing): its canonical order.
+    internal::CanonicaliseCornerOrder(grey, board, &corners);
+  } else {
+    detection.partial = true;
+  }
+  detection.corners = std::move(corners);
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) detection.indices.push_back(r * board.cols + c);
+  }
+  return detection;
 }
 
 }  // namespace sope
