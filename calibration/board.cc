@@ -149,6 +149,8 @@ void BoardDetectionOptions::Check() const {
              "min_partial_corner_fraction must be in (0, 1], got {}", min_partial_corner_fraction);
   SOPE_CHECK(partial_edge_squares >= 0 && partial_edge_squares <= 2,
              "partial_edge_squares must be in [0, 2], got {}", partial_edge_squares);
+  SOPE_CHECK(partial_corner_edge_squares >= 0 && partial_corner_edge_squares <= 2,
+             "partial_corner_edge_squares must be in [0, 2], got {}", partial_corner_edge_squares);
 }
 
 namespace internal {
@@ -194,57 +196,54 @@ int SectorBasedFlags(const BoardDetectionOptions& options) {
   return flags;
 }
 
-// Removes the outer columns and rows of a grid (cols × rows, row-major) while one of
-// their corners lies within `edge_squares` local squares of the image edge, keeping at
-// least min_side corners along each side.
-void TrimCornersAtTheBorder(cv::Size image, double edge_squares, int min_side,
+// The largest sub-grid (at least min_side corners along each side) of a grid (cols ×
+// rows, row-major) without corners within `edge_squares` local squares of the image edge;
+// `corners`, `cols` and `rows` become it. False when there is none.
+bool TrimCornersAtTheBorder(cv::Size image, double edge_squares, int min_side,
                             std::vector<Eigen::Vector2d>* corners, int* cols, int* rows) {
+  const int n_cols = *cols, n_rows = *rows;
   const auto at = [&](int c, int r) -> const Eigen::Vector2d& {
-    return (*corners)[r * *cols + c];
+    return (*corners)[r * n_cols + c];
   };
-  // Whether corner (c, r) is within the margin, its square size from a grid neighbour.
-  const auto near_edge = [&](int c, int r) {
-    const Eigen::Vector2d& p = at(c, r);
-    const Eigen::Vector2d& q = at(c + (c + 1 < *cols ? 1 : -1), r);
-    const double margin = edge_squares * (p - q).norm();
-    return p.x() < margin || p.y() < margin || p.x() > image.width - 1 - margin ||
-           p.y() > image.height - 1 - margin;
-  };
-  // Fraction of a column's or a row's corners within the margin.
-  const auto column_near = [&](int c) {
-    int near = 0;
-    for (int r = 0; r < *rows; ++r) near += near_edge(c, r);
-    return static_cast<double>(near) / *rows;
-  };
-  const auto row_near = [&](int r) {
-    int near = 0;
-    for (int c = 0; c < *cols; ++c) near += near_edge(c, r);
-    return static_cast<double>(near) / *cols;
-  };
-  // Keeps columns [c0, c1) and rows [r0, r1).
-  const auto keep = [&](int c0, int c1, int r0, int r1) {
-    std::vector<Eigen::Vector2d> kept;
-    for (int r = r0; r < r1; ++r) {
-      for (int c = c0; c < c1; ++c) kept.push_back(at(c, r));
+  // near[r][c]: corner (c, r) within the margin, its square size from a grid neighbour.
+  std::vector<std::vector<int>> near(n_rows, std::vector<int>(n_cols, 0));
+  for (int r = 0; r < n_rows; ++r) {
+    for (int c = 0; c < n_cols; ++c) {
+      const Eigen::Vector2d& p = at(c, r);
+      const Eigen::Vector2d& q = at(c + (c + 1 < n_cols ? 1 : -1), r);
+      const double margin = edge_squares * (p - q).norm();
+      near[r][c] = p.x() < margin || p.y() < margin || p.x() > image.width - 1 - margin ||
+                   p.y() > image.height - 1 - margin;
     }
-    *corners = std::move(kept);
-    *cols = c1 - c0;
-    *rows = r1 - r0;
-  };
-  // Each round drops the outer column or row with the largest share of such corners (a
-  // board cut along one edge loses the line along that edge, not the lines across it).
-  while (true) {
-    const double shares[4] = {*cols > min_side ? column_near(0) : 0.0,
-                              *cols > min_side ? column_near(*cols - 1) : 0.0,
-                              *rows > min_side ? row_near(0) : 0.0,
-                              *rows > min_side ? row_near(*rows - 1) : 0.0};
-    const int side = static_cast<int>(std::max_element(shares, shares + 4) - shares);
-    if (shares[side] <= 0.0) break;
-    if (side == 0) keep(1, *cols, 0, *rows);
-    if (side == 1) keep(0, *cols - 1, 0, *rows);
-    if (side == 2) keep(0, *cols, 1, *rows);
-    if (side == 3) keep(0, *cols, 0, *rows - 1);
   }
+  // Exhaustive over the sub-rectangles [c0, c1) × [r0, r1): boards have ~100 corners.
+  int best_area = 0, best_c0 = 0, best_c1 = 0, best_r0 = 0, best_r1 = 0;
+  for (int c0 = 0; c0 < n_cols; ++c0) {
+    for (int c1 = c0 + min_side; c1 <= n_cols; ++c1) {
+      for (int r0 = 0; r0 < n_rows; ++r0) {
+        for (int r1 = r0 + min_side; r1 <= n_rows; ++r1) {
+          const int area = (c1 - c0) * (r1 - r0);
+          if (area <= best_area) continue;
+          bool clean = true;
+          for (int r = r0; r < r1 && clean; ++r) {
+            for (int c = c0; c < c1 && clean; ++c) clean = !near[r][c];
+          }
+          if (!clean) continue;
+          best_area = area;
+          best_c0 = c0, best_c1 = c1, best_r0 = r0, best_r1 = r1;
+        }
+      }
+    }
+  }
+  if (best_area == 0) return false;
+  std::vector<Eigen::Vector2d> kept;
+  for (int r = best_r0; r < best_r1; ++r) {
+    for (int c = best_c0; c < best_c1; ++c) kept.push_back(at(c, r));
+  }
+  *corners = std::move(kept);
+  *cols = best_c1 - best_c0;
+  *rows = best_r1 - best_r0;
+  return true;
 }
 
 // Whether a visible grid (cols × rows corners, row-major) missing `missing_cols` columns
@@ -347,13 +346,21 @@ std::optional<BoardDetection> DetectBoard(const cv::Mat& image, const BoardSpec&
   const cv::Mat grey = internal::ToGrey8(image, "DetectBoard");
   // The smallest grid SB accepts; CALIB_CB_LARGER grows it to the largest one in view.
   constexpr int kMinGridSide = 3;
+  // SB discards a grown grid whose outline comes within 5 px of the image edge, which a
+  // board running out of the image always does: it searches a copy padded with the mean
+  // grey instead (no corners there, so the grid still ends at the image's edge).
+  const int pad = std::max(32, std::max(grey.cols, grey.rows) / 20);
+  cv::Mat padded;
+  cv::copyMakeBorder(grey, padded, pad, pad, pad, pad, cv::BORDER_CONSTANT,
+                     cv::Scalar(cv::mean(grey)[0]));
   std::vector<cv::Point2f> found;
   cv::Mat meta;
-  if (!cv::findChessboardCornersSB(grey, cv::Size(kMinGridSide, kMinGridSide), found,
+  if (!cv::findChessboardCornersSB(padded, cv::Size(kMinGridSide, kMinGridSide), found,
                                    internal::SectorBasedFlags(options) | cv::CALIB_CB_LARGER,
                                    meta)) {
     return std::nullopt;
   }
+  for (cv::Point2f& p : found) p -= cv::Point2f(static_cast<float>(pad), static_cast<float>(pad));
   int cols = meta.cols, rows = meta.rows;
   if (cols < kMinGridSide || rows < kMinGridSide ||
       static_cast<int>(found.size()) != cols * rows) {
@@ -361,11 +368,28 @@ std::optional<BoardDetection> DetectBoard(const cv::Mat& image, const BoardSpec&
   }
   std::vector<Eigen::Vector2d> corners;
   for (const cv::Point2f& p : found) corners.emplace_back(p.x, p.y);
-  // Corners whose squares the border cuts are placed less well (on synthetic boards up to
-  // 0.2 px off at a third of a square from the edge, against < 0.1 px inside): the grid
-  // loses its outer columns and rows while they have one.
-  internal::TrimCornersAtTheBorder(grey.size(), options.partial_edge_squares, kMinGridSide,
-                                   &corners, &cols, &rows);
+  // The grid's columns along the board's rows of corners, or (transposed) along its
+  // columns: the first way round whose missing part can lie outside the image.
+  std::optional<bool> transpose;
+  for (const bool t : {false, true}) {
+    const int board_cols = t ? board.rows : board.cols;
+    const int board_rows = t ? board.cols : board.rows;
+    if (cols > board_cols || rows > board_rows) continue;
+    if (internal::MissingPartOutsideImage(corners, cols, rows, board_cols - cols,
+                                          board_rows - rows, grey.size(),
+                                          options.partial_edge_squares)) {
+      transpose = t;
+      break;
+    }
+  }
+  if (!transpose) return std::nullopt;
+  // Corners whose squares the border cuts are placed less well: the largest sub-grid
+  // without them is kept.
+  if (!internal::TrimCornersAtTheBorder(grey.size(), options.partial_corner_edge_squares,
+                                        kMinGridSide,
+                                        &corners, &cols, &rows)) {
+    return std::nullopt;
+  }
   const int min_corners = std::max(
       kMinGridSide * kMinGridSide,
       static_cast<int>(std::ceil(options.min_partial_corner_fraction * board.NumCorners())));
@@ -380,30 +404,14 @@ std::optional<BoardDetection> DetectBoard(const cv::Mat& image, const BoardSpec&
       for (size_t i = 0; i < found.size(); ++i) corners[i] = Eigen::Vector2d(found[i].x, found[i].y);
     }
   }
-  // The grid's columns along the board's rows of corners, or (transposed) along its
-  // columns: the first way round whose missing part can lie outside the image.
-  bool accepted = false;
-  for (const bool transpose : {false, true}) {
-    const int board_cols = transpose ? board.rows : board.cols;
-    const int board_rows = transpose ? board.cols : board.rows;
-    if (cols > board_cols || rows > board_rows) continue;
-    if (!internal::MissingPartOutsideImage(corners, cols, rows, board_cols - cols,
-                                           board_rows - rows, grey.size(),
-                                           options.partial_edge_squares)) {
-      continue;
+  if (*transpose) {
+    std::vector<Eigen::Vector2d> transposed(corners.size());
+    for (int r = 0; r < cols; ++r) {
+      for (int c = 0; c < rows; ++c) transposed[r * rows + c] = corners[c * cols + r];
     }
-    if (transpose) {
-      std::vector<Eigen::Vector2d> transposed(corners.size());
-      for (int r = 0; r < cols; ++r) {
-        for (int c = 0; c < rows; ++c) transposed[r * rows + c] = corners[c * cols + r];
-      }
-      corners = std::move(transposed);
-      std::swap(cols, rows);
-    }
-    accepted = true;
-    break;
+    corners = std::move(transposed);
+    std::swap(cols, rows);
   }
-  if (!accepted) return std::nullopt;
   // Right-handed with z away from the camera, as DetectBoardCorners: mirror the rows
   // otherwise.
   const auto at = [&](int c, int r) -> const Eigen::Vector2d& { return corners[r * cols + c]; };
