@@ -138,6 +138,10 @@ int RunSimulate(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--pose-seed", board_options.seed, "--board: seed of the random board poses")
       ->capture_default_str();
+  app.add_option("--partial-views", board_options.partial_fraction,
+                 "--board: fraction of the views whose board runs partly out of the camera "
+                 "image (10-40% of its corners outside; 0 = every board in full view)")
+      ->capture_default_str();
   app.add_option("--object-pose", pose_text,
                  "Object rotation (degrees, R = Rz*Ry*Rx) and bounding-box centre (metres) "
                  "in the camera frame: rx,ry,rz,tx,ty,tz")
