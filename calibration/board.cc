@@ -246,6 +246,29 @@ bool TrimCornersAtTheBorder(cv::Size image, double edge_squares, int min_side,
   return true;
 }
 
+// Whether a grid (cols × rows, row-major) is a lattice seen through a plane: a
+// homography from its (c, r) fits every corner to within 0.15 of the median spacing (and
+// 0.05 RMS). SB with CALIB_CB_LARGER can return a tangle of corners from the board's
+// margin and squares; lens distortion over a board stays far below this.
+bool IsPlaneLattice(const std::vector<cv::Point2f>& corners, int cols, int rows) {
+  std::vector<cv::Point2f> grid;
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) grid.emplace_back(static_cast<float>(c), static_cast<float>(r));
+  }
+  const cv::Mat h = cv::findHomography(grid, corners, 0);
+  if (h.empty()) return false;
+  std::vector<cv::Point2f> mapped;
+  cv::perspectiveTransform(grid, mapped, h);
+  const double spacing = Spacings(corners, cols, rows).second;
+  double sum = 0.0, worst = 0.0;
+  for (size_t i = 0; i < corners.size(); ++i) {
+    const double e = cv::norm(mapped[i] - corners[i]);
+    sum += e * e;
+    worst = std::max(worst, e);
+  }
+  return worst <= 0.15 * spacing && std::sqrt(sum / corners.size()) <= 0.05 * spacing;
+}
+
 // Whether a visible grid (cols × rows corners, row-major) missing `missing_cols` columns
 // and `missing_rows` rows of its board can have lost them only to the image border: along
 // each direction with corners missing, the grid extended by one square on at least one
@@ -253,41 +276,28 @@ bool TrimCornersAtTheBorder(cv::Size image, double edge_squares, int min_side,
 bool MissingPartOutsideImage(const std::vector<Eigen::Vector2d>& corners, int cols, int rows,
                              int missing_cols, int missing_rows, cv::Size image,
                              double edge_squares) {
-  std::vector<cv::Point2f> grid, pixels;
-  for (int r = 0; r < rows; ++r) {
-    for (int c = 0; c < cols; ++c) {
-      grid.emplace_back(static_cast<float>(c), static_cast<float>(r));
-      const Eigen::Vector2d& p = corners[r * cols + c];
-      pixels.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
-    }
-  }
-  const cv::Mat h = cv::findHomography(grid, pixels, 0);
-  if (h.empty()) return false;
-  const auto map = [&](double c, double r, Eigen::Vector2d* pixel) {
-    const double x = h.at<double>(0, 0) * c + h.at<double>(0, 1) * r + h.at<double>(0, 2);
-    const double y = h.at<double>(1, 0) * c + h.at<double>(1, 1) * r + h.at<double>(1, 2);
-    const double w = h.at<double>(2, 0) * c + h.at<double>(2, 1) * r + h.at<double>(2, 2);
-    if (!(w > 1e-12)) return false;  // beyond the horizon: not in the image
-    *pixel = Eigen::Vector2d(x / w, y / w);
-    return pixel->allFinite();
-  };
-  // Corner (c, r) beyond the grid, `inward` the step back onto it.
-  const auto cut = [&](double c, double r, double dc, double dr) {
-    Eigen::Vector2d p, q;
-    if (!map(c, r, &p) || !map(c + dc, r + dr, &q)) return true;
-    const double margin = edge_squares * (p - q).norm();
+  const auto at = [&](int c, int r) -> const Eigen::Vector2d& { return corners[r * cols + c]; };
+  // Corner (c, r) of the grid's edge line and its neighbour (c + dc, r + dr) inward: the
+  // corner one square beyond, extrapolated linearly (a homography of the whole grid
+  // extrapolates wildly when the grid is a narrow strip), is outside the image or within
+  // edge_squares of that square's size of its edge.
+  const auto cut = [&](int c, int r, int dc, int dr) {
+    const Eigen::Vector2d step = at(c, r) - at(c + dc, r + dr);
+    const Eigen::Vector2d p = at(c, r) + step;
+    const double margin = edge_squares * step.norm();
     return !(p.x() >= margin && p.y() >= margin && p.x() <= image.width - 1 - margin &&
              p.y() <= image.height - 1 - margin);
   };
-  const auto side_cut = [&](bool along_columns, int beyond, int inward) {
+  // `edge`: the grid's first or last column (along_columns) or row; `inward`: ±1 into it.
+  const auto side_cut = [&](bool along_columns, int edge, int inward) {
     const int count = along_columns ? rows : cols;
     for (int i = 0; i < count; ++i) {
-      if (along_columns ? cut(beyond, i, inward, 0) : cut(i, beyond, 0, inward)) return true;
+      if (along_columns ? cut(edge, i, inward, 0) : cut(i, edge, 0, inward)) return true;
     }
     return false;
   };
-  if (missing_cols > 0 && !side_cut(true, -1, 1) && !side_cut(true, cols, -1)) return false;
-  if (missing_rows > 0 && !side_cut(false, -1, 1) && !side_cut(false, rows, -1)) return false;
+  if (missing_cols > 0 && !side_cut(true, 0, 1) && !side_cut(true, cols - 1, -1)) return false;
+  if (missing_rows > 0 && !side_cut(false, 0, 1) && !side_cut(false, rows - 1, -1)) return false;
   return true;
 }
 
@@ -398,6 +408,8 @@ std::optional<BoardDetection> DetectBoard(const cv::Mat& image, const BoardSpec&
     found.clear();
     for (const Eigen::Vector2d& p : corners)
       found.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()));
+    // (Checked on the kept corners: those at the edge may sit a few pixels off.)
+    if (!internal::IsPlaneLattice(found, cols, rows)) return std::nullopt;
     const auto [smallest, median] = internal::Spacings(found, cols, rows);
     if (options.detector == CornerDetector::kClassic || median < options.subpix_below_spacing_px) {
       internal::RefineCorners(grey, options, smallest, &found);

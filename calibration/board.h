@@ -126,7 +126,7 @@ struct BoardDetection {
 // visible grid (SB with CALIB_CB_LARGER on the image padded with its mean grey, so that a
 // grid may run up to the edge). The grid is accepted when it fits inside the board
 // (either way round) and every direction along which corners are missing has a side cut
-// by the image border: a corner one square beyond it, by the grid's homography, is
+// by the image border: a corner one square beyond it, extrapolated from the last two, is
 // outside the image or within options.partial_edge_squares squares of its edge. A board
 // fully in view with fewer corners than `board` is thereby not taken for a part of it.
 // Then the largest sub-grid without corners within options.partial_corner_edge_squares
