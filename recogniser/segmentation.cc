@@ -166,21 +166,11 @@ void TableSegmentationOptions::Check() const {
              "table segmentation: min cluster points must be ≥ 1, got {}", min_cluster_points);
 }
 
-TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationOptions& options) {
-  options.Check();
-  cloud.Check();
-  const Stopwatch watch;
-  SOPE_CHECK(cloud.size() >= 3,
-             "table segmentation: the cloud has {} point(s); a table plane needs at least 3",
-             cloud.size());
-  const size_t finite = cloud.CountFinite();
-  SOPE_CHECK(finite == cloud.size(),
-             "table segmentation: the cloud has {} non-finite point(s) (NaN or infinite "
-             "coordinates) of {}",
-             cloud.size() - finite, cloud.size());
-  TableSegmentation out;
+namespace {
 
-  // Points in the range band.
+// The cloud's points in the range band, every `keep_every`-th point kept so that at most
+// about `max_points` remain.
+std::vector<int> RangeBand(const PointCloud& cloud, const TableSegmentationOptions& options) {
   const double lo2 = options.min_range * options.min_range;
   const double hi2 = options.max_range * options.max_range;
   std::vector<int> band;
@@ -196,15 +186,13 @@ TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationO
     const double r2 = cloud.points[i].cast<double>().squaredNorm();
     if (r2 >= lo2 && r2 <= hi2) band.push_back(static_cast<int>(i));
   }
-  out.finite_points = static_cast<int>(band.size());
-  if (band.size() < 3) {
-    out.message = fmt::format("no plane: {} point(s) in the range band [{}, {}] m", band.size(),
-                              options.min_range, options.max_range);
-    out.ms = watch.WallMs();
-    return out;
-  }
+  return band;
+}
 
-  // 1. RANSAC on an even subsample, then least squares on every inlier.
+// The table plane: RANSAC on an even subsample of the band, then least squares on every
+// inlier (twice). `found` when at least `needed` (and 3) band points lie on it.
+TablePlane FitTablePlane(const PointCloud& cloud, const std::vector<int>& band,
+                         const TableSegmentationOptions& options, size_t needed) {
   const size_t stride =
       std::max<size_t>(1, band.size() / static_cast<size_t>(options.plane_samples));
   pcl::PointCloud<pcl::PointXYZ>::Ptr sample(new pcl::PointCloud<pcl::PointXYZ>);
@@ -222,29 +210,137 @@ TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationO
   pcl::PointIndices sample_inliers;
   pcl::ModelCoefficients coefficients;
   sac.segment(sample_inliers, coefficients);
-  const size_t needed = static_cast<size_t>(std::ceil(options.min_plane_fraction * band.size()));
   TablePlane plane;
-  if (coefficients.values.size() == 4) {
-    Eigen::Vector3f normal(coefficients.values[0], coefficients.values[1],
-                           coefficients.values[2]);
-    const float norm = normal.norm();
-    if (norm > 0 && std::isfinite(norm)) {
-      plane.normal = normal / norm;
-      plane.offset = coefficients.values[3] / norm;
-      std::vector<int> inliers;
-      for (int round = 0; round < 2; ++round) {  // refit on all raw inliers, twice
-        inliers.clear();
-        for (int i : band) {
-          if (std::abs(plane.Height(cloud.points[i])) <= options.plane_distance) {
-            inliers.push_back(i);
-          }
-        }
-        if (!FitPlane(cloud.points, inliers, &plane)) break;
+  if (coefficients.values.size() != 4) return plane;
+  Eigen::Vector3f normal(coefficients.values[0], coefficients.values[1], coefficients.values[2]);
+  const float norm = normal.norm();
+  if (!(norm > 0 && std::isfinite(norm))) return plane;
+  plane.normal = normal / norm;
+  plane.offset = coefficients.values[3] / norm;
+  std::vector<int> inliers;
+  for (int round = 0; round < 2; ++round) {  // refit on all raw inliers, twice
+    inliers.clear();
+    for (int i : band) {
+      if (std::abs(plane.Height(cloud.points[i])) <= options.plane_distance) {
+        inliers.push_back(i);
       }
-      plane.inliers = static_cast<int>(inliers.size());
-      plane.found = inliers.size() >= std::max<size_t>(needed, 3);
     }
+    if (!FitPlane(cloud.points, inliers, &plane)) break;
   }
+  plane.inliers = static_cast<int>(inliers.size());
+  plane.found = inliers.size() >= std::max<size_t>(needed, 3);
+  return plane;
+}
+
+// Points voxel-thinned to their voxel centroids; each input point keeps its voxel.
+struct VoxelGrid {
+  std::vector<int> voxel_of_point;         // per input point
+  std::vector<Eigen::Vector3f> centroids;  // per voxel
+};
+
+VoxelGrid ThinToVoxels(const PointCloud& cloud, const std::vector<int>& indices, double leaf) {
+  const float inv_leaf = static_cast<float>(1.0 / leaf);
+  std::unordered_map<uint64_t, int> voxel_of_key;
+  voxel_of_key.reserve(indices.size() / 4);
+  VoxelGrid grid;
+  grid.voxel_of_point.resize(indices.size());
+  std::vector<Eigen::Vector3d> voxel_sum;
+  std::vector<int> voxel_count;
+  for (size_t k = 0; k < indices.size(); ++k) {
+    const Eigen::Vector3f& p = cloud.points[indices[k]];
+    const auto cx = static_cast<int64_t>(std::floor(p.x() * inv_leaf)) + (1 << 20);
+    const auto cy = static_cast<int64_t>(std::floor(p.y() * inv_leaf)) + (1 << 20);
+    const auto cz = static_cast<int64_t>(std::floor(p.z() * inv_leaf)) + (1 << 20);
+    const uint64_t key = (static_cast<uint64_t>(cx) << 42) ^ (static_cast<uint64_t>(cy) << 21) ^
+                         static_cast<uint64_t>(cz);
+    auto [it, inserted] = voxel_of_key.emplace(key, static_cast<int>(voxel_sum.size()));
+    if (inserted) {
+      voxel_sum.emplace_back(Eigen::Vector3d::Zero());
+      voxel_count.push_back(0);
+    }
+    grid.voxel_of_point[k] = it->second;
+    voxel_sum[it->second] += p.cast<double>();
+    ++voxel_count[it->second];
+  }
+  grid.centroids.resize(voxel_sum.size());
+  for (size_t v = 0; v < voxel_sum.size(); ++v) {
+    grid.centroids[v] = (voxel_sum[v] / voxel_count[v]).cast<float>();
+  }
+  return grid;
+}
+
+// Euclidean clusters of the voxels of the points `above` the table, as clusters of the
+// points, those of at least `min_cluster_points` points, largest first.
+std::vector<ObjectCluster> ClusterAbovePoints(const PointCloud& cloud,
+                                              const std::vector<int>& above,
+                                              const TableSegmentationOptions& options) {
+  const VoxelGrid grid = ThinToVoxels(cloud, above, options.cluster_leaf);
+  const double tolerance =
+      options.cluster_tolerance > 0 ? options.cluster_tolerance : 2.5 * options.cluster_leaf;
+  const std::vector<std::vector<int>> voxel_clusters =
+      options.clustering == TableSegmentationOptions::Clustering::kPclKdTree
+          ? PclEuclideanClusters(grid.centroids, tolerance)
+          : GridEuclideanClusters(grid.centroids, tolerance);
+  std::vector<int> cluster_of_voxel(grid.centroids.size(), -1);
+  for (size_t c = 0; c < voxel_clusters.size(); ++c) {
+    for (int v : voxel_clusters[c]) cluster_of_voxel[v] = static_cast<int>(c);
+  }
+  std::vector<ObjectCluster> clusters(voxel_clusters.size());
+  for (size_t k = 0; k < above.size(); ++k) {
+    const int c = cluster_of_voxel[grid.voxel_of_point[k]];
+    if (c >= 0) clusters[c].indices.push_back(above[k]);
+  }
+  std::vector<ObjectCluster> kept;
+  for (ObjectCluster& cluster : clusters) {
+    if (static_cast<int>(cluster.indices.size()) < options.min_cluster_points) continue;
+    std::sort(cluster.indices.begin(), cluster.indices.end());
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    cluster.cloud.points.reserve(cluster.indices.size());
+    for (int i : cluster.indices) {
+      cluster.cloud.points.push_back(cloud.points[i]);
+      if (cloud.HasColors()) cluster.cloud.colors.push_back(cloud.colors[i]);
+      sum += cloud.points[i].cast<double>();
+    }
+    cluster.centroid = (sum / static_cast<double>(cluster.indices.size())).cast<float>();
+    kept.push_back(std::move(cluster));
+  }
+  std::stable_sort(kept.begin(), kept.end(), [](const ObjectCluster& a, const ObjectCluster& b) {
+    // Equal sizes: the first point first (an order both clusterings share).
+    if (a.indices.size() != b.indices.size()) return a.indices.size() > b.indices.size();
+    return a.indices.front() < b.indices.front();
+  });
+  return kept;
+}
+
+}  // namespace
+
+TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationOptions& options) {
+  options.Check();
+  cloud.Check();
+  const Stopwatch watch;
+  SOPE_CHECK(cloud.size() >= 3,
+             "table segmentation: the cloud has {} point(s); a table plane needs at least 3",
+             cloud.size());
+  const size_t finite = cloud.CountFinite();
+  SOPE_CHECK(finite == cloud.size(),
+             "table segmentation: the cloud has {} non-finite point(s) (NaN or infinite "
+             "coordinates) of {}",
+             cloud.size() - finite, cloud.size());
+  TableSegmentation out;
+
+  // Points in the range band.
+  const std::vector<int> band = RangeBand(cloud, options);
+  out.finite_points = static_cast<int>(band.size());
+  if (band.size() < 3) {
+    out.message = fmt::format("no plane: {} point(s) in the range band [{}, {}] m", band.size(),
+                              options.min_range, options.max_range);
+    out.ms = watch.WallMs();
+    return out;
+  }
+
+  // 1. RANSAC on an even subsample, then least squares on every inlier.
+  const size_t needed = static_cast<size_t>(std::ceil(options.min_plane_fraction * band.size()));
+  TablePlane plane = FitTablePlane(cloud, band, options, needed);
   out.plane = plane;
   if (!plane.found) {
     out.message = fmt::format("no plane: {} of {} points on the best plane (at least {} needed)",
@@ -270,70 +366,9 @@ TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationO
     out.ms = watch.WallMs();
     return out;
   }
-  const float inv_leaf = static_cast<float>(1.0 / options.cluster_leaf);
-  std::unordered_map<uint64_t, int> voxel_of_key;
-  voxel_of_key.reserve(above.size() / 4);
-  std::vector<int> voxel_of_point(above.size());
-  std::vector<Eigen::Vector3d> voxel_sum;
-  std::vector<int> voxel_count;
-  for (size_t k = 0; k < above.size(); ++k) {
-    const Eigen::Vector3f& p = cloud.points[above[k]];
-    const auto cx = static_cast<int64_t>(std::floor(p.x() * inv_leaf)) + (1 << 20);
-    const auto cy = static_cast<int64_t>(std::floor(p.y() * inv_leaf)) + (1 << 20);
-    const auto cz = static_cast<int64_t>(std::floor(p.z() * inv_leaf)) + (1 << 20);
-    const uint64_t key = (static_cast<uint64_t>(cx) << 42) ^ (static_cast<uint64_t>(cy) << 21) ^
-                         static_cast<uint64_t>(cz);
-    auto [it, inserted] = voxel_of_key.emplace(key, static_cast<int>(voxel_sum.size()));
-    if (inserted) {
-      voxel_sum.emplace_back(Eigen::Vector3d::Zero());
-      voxel_count.push_back(0);
-    }
-    voxel_of_point[k] = it->second;
-    voxel_sum[it->second] += p.cast<double>();
-    ++voxel_count[it->second];
-  }
-  std::vector<Eigen::Vector3f> thinned(voxel_sum.size());
-  for (size_t v = 0; v < voxel_sum.size(); ++v) {
-    thinned[v] = (voxel_sum[v] / voxel_count[v]).cast<float>();
-  }
 
   // 3. Euclidean clusters of the voxels.
-  const double tolerance =
-      options.cluster_tolerance > 0 ? options.cluster_tolerance : 2.5 * options.cluster_leaf;
-  const std::vector<std::vector<int>> voxel_clusters =
-      options.clustering == TableSegmentationOptions::Clustering::kPclKdTree
-          ? PclEuclideanClusters(thinned, tolerance)
-          : GridEuclideanClusters(thinned, tolerance);
-  std::vector<int> cluster_of_voxel(voxel_sum.size(), -1);
-  for (size_t c = 0; c < voxel_clusters.size(); ++c) {
-    for (int v : voxel_clusters[c]) cluster_of_voxel[v] = static_cast<int>(c);
-  }
-  std::vector<ObjectCluster> clusters(voxel_clusters.size());
-  for (size_t k = 0; k < above.size(); ++k) {
-    const int c = cluster_of_voxel[voxel_of_point[k]];
-    if (c >= 0) clusters[c].indices.push_back(above[k]);
-  }
-  for (ObjectCluster& cluster : clusters) {
-    if (static_cast<int>(cluster.indices.size()) < options.min_cluster_points) continue;
-    std::sort(cluster.indices.begin(), cluster.indices.end());
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    cluster.cloud.points.reserve(cluster.indices.size());
-    for (int i : cluster.indices) {
-      cluster.cloud.points.push_back(cloud.points[i]);
-      if (cloud.HasColors()) cluster.cloud.colors.push_back(cloud.colors[i]);
-      sum += cloud.points[i].cast<double>();
-    }
-    cluster.centroid = (sum / static_cast<double>(cluster.indices.size())).cast<float>();
-    out.clusters.push_back(std::move(cluster));
-  }
-  std::stable_sort(out.clusters.begin(), out.clusters.end(),
-                   [](const ObjectCluster& a, const ObjectCluster& b) {
-                     // Equal sizes: the first point first (an order both clusterings share).
-                     if (a.indices.size() != b.indices.size()) {
-                       return a.indices.size() > b.indices.size();
-                     }
-                     return a.indices.front() < b.indices.front();
-                   });
+  out.clusters = ClusterAbovePoints(cloud, above, options);
   if (out.clusters.empty()) {
     out.message = fmt::format("nothing on the table: {} point(s) above the plane, no cluster of "
                               "{} or more",
