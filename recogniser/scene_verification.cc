@@ -60,6 +60,175 @@ class DepthGrid {
   std::vector<float> depth_;
 };
 
+// A hypothesis's model points in the camera frame: those facing the camera that agree
+// with the observed depth, and the model's bounding box (model frame, with the margin).
+struct VisibleModel {
+  std::vector<Eigen::Vector3f> points_in_cam;
+  Eigen::Vector3f box_min_in_model;
+  Eigen::Vector3f box_max_in_model;
+};
+
+// Classifies the model points facing the camera along their rays (counts into `e`:
+// visible, empty, violations, occluded) and keeps those on the observed surface.
+VisibleModel ClassifyAlongRays(const PointCloud& model, const Eigen::Matrix3f& rotation,
+                               const Eigen::Vector3f& translation, const DepthGrid& depth,
+                               const SceneVerificationOptions& options,
+                               const std::function<bool(const Eigen::Vector3f&)>& ignore,
+                               HypothesisEvidence* e) {
+  const float violation = static_cast<float>(options.violation_distance);
+  VisibleModel visible;
+  Eigen::Vector3f box_min = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+  Eigen::Vector3f box_max = -box_min;
+  for (size_t i = 0; i < model.size(); ++i) {
+    box_min = box_min.cwiseMin(model.points[i]);
+    box_max = box_max.cwiseMax(model.points[i]);
+    const Eigen::Vector3f p = rotation * model.points[i] + translation;
+    const Eigen::Vector3f n = rotation * model.normals[i];
+    if (!(p.z() > 0.0f) || n.dot(p) >= 0.0f) continue;
+    if (ignore && ignore(p)) continue;
+    ++e->visible;
+    const float seen = depth.At(p);
+    if (!std::isfinite(seen)) {
+      ++e->empty;
+    } else if (seen > p.z() + violation) {
+      ++e->violations;
+    } else if (seen < p.z() - violation) {
+      ++e->occluded;
+    } else {
+      visible.points_in_cam.push_back(p);
+    }
+  }
+  const Eigen::Vector3f margin = Eigen::Vector3f::Constant(static_cast<float>(options.box_margin));
+  visible.box_min_in_model = box_min - margin;
+  visible.box_max_in_model = box_max + margin;
+  return visible;
+}
+
+// Scene points in the box within `distance` of a visible model point (explained), the
+// visible model points some such scene point is near (fitting) and the scene points in
+// the box (local).
+struct Explanation {
+  std::vector<int> explained;
+  int fitting = 0;
+  int local = 0;
+};
+
+// Uses a grid whose window of one cell spans `distance`.
+Explanation ExplainScene(const PointCloud& scene, const VisibleModel& visible,
+                         const Eigen::Matrix3f& rotation, const Eigen::Vector3f& translation,
+                         const SceneVerificationOptions& options, double distance) {
+  const Eigen::Matrix3f model_from_cam = rotation.transpose();
+  const float cell = static_cast<float>(options.ray_cell * distance / options.inlier_distance);
+  const ProjectiveGrid model_grid(visible.points_in_cam, {}, cell);
+  const float distance2 = static_cast<float>(distance * distance);
+  std::vector<uint8_t> fits(visible.points_in_cam.size(), 0);
+  Explanation explanation;
+  for (size_t j = 0; j < scene.size(); ++j) {
+    const Eigen::Vector3f q = model_from_cam * (scene.points[j] - translation);
+    const bool in_box = (q.array() >= visible.box_min_in_model.array()).all() &&
+                        (q.array() <= visible.box_max_in_model.array()).all();
+    if (!in_box) continue;
+    ++explanation.local;
+    float d2 = 0;
+    const int nearest =
+        model_grid.Nearest(scene.points[j], Eigen::Vector3f::Zero(), 0.0f, 1, distance2, &d2);
+    if (nearest >= 0) {
+      explanation.explained.push_back(static_cast<int>(j));
+      fits[nearest] = 1;
+    }
+  }
+  // Counted from the scene side only (a visible point fits when a scene point in the box
+  // is near it), to stay symmetric with `explained`.
+  for (const uint8_t f : fits) explanation.fitting += f;
+  return explanation;
+}
+
+// The evidence for one hypothesis, at instance level and, failing that, at class level.
+HypothesisEvidence EvaluateHypothesis(const PointCloud& scene, const SceneHypothesis& hypothesis,
+                                      const DepthGrid& depth,
+                                      const SceneVerificationOptions& options,
+                                      const std::function<bool(const Eigen::Vector3f&)>& ignore) {
+  const PointCloud& model = *hypothesis.model_cloud;
+  const Eigen::Matrix3f rotation = hypothesis.cam_from_model.rotation.cast<float>();
+  const Eigen::Vector3f translation = hypothesis.cam_from_model.translation.cast<float>();
+  HypothesisEvidence e;
+  // Model points facing the camera, classified along their rays.
+  const VisibleModel visible =
+      ClassifyAlongRays(model, rotation, translation, depth, options, ignore, &e);
+  // Scene points near the model's visible surface: explained; model points near the
+  // scene: fitting.
+  Explanation at_instance =
+      ExplainScene(scene, visible, rotation, translation, options, options.inlier_distance);
+  e.explained = std::move(at_instance.explained);
+  e.fitting = at_instance.fitting;
+  e.local = at_instance.local;
+  const int unoccluded = std::max(1, e.visible - e.occluded - e.empty);
+  e.model_fit = std::min(1.0, static_cast<double>(e.fitting) / unoccluded);
+  e.violation_fraction = static_cast<double>(e.violations) / unoccluded;
+  e.local_explained = e.local > 0 ? static_cast<double>(e.explained.size()) / e.local : 0.0;
+  e.visible_fraction = e.visible > 0 ? static_cast<double>(e.fitting) / e.visible : 0.0;
+  const bool instance = e.model_fit >= options.min_model_fit &&
+                        e.local_explained >= options.min_local_explained &&
+                        e.violation_fraction <= options.max_violation_fraction;
+  if (!instance && hypothesis.class_probability >= options.min_class_probability &&
+      e.violation_fraction <= options.class_max_violation_fraction) {
+    // Class level: the same tests at the class inlier distance (another instance's surface
+    // lies some millimetres off the database model's), with their own thresholds.
+    Explanation at_class = ExplainScene(scene, visible, rotation, translation, options,
+                                        options.class_inlier_distance);
+    const double fit = std::min(1.0, static_cast<double>(at_class.fitting) / unoccluded);
+    const double local_explained =
+        at_class.local > 0 ? static_cast<double>(at_class.explained.size()) / at_class.local
+                           : 0.0;
+    if (fit >= options.class_min_model_fit &&
+        local_explained >= options.class_min_local_explained && !at_class.explained.empty()) {
+      e.class_level = true;
+      e.model_fit = fit;
+      e.local_explained = local_explained;
+      e.fitting = at_class.fitting;
+      e.visible_fraction = e.visible > 0 ? static_cast<double>(at_class.fitting) / e.visible : 0.0;
+      e.explained = std::move(at_class.explained);
+    }
+  }
+  e.passes = (instance || e.class_level) && !e.explained.empty();
+  return e;
+}
+
+// Greedy global selection: repeatedly accepts the passing hypothesis of the largest gain
+// (fresh points less duplicates, violations and the prior) until none gains enough.
+void SelectGreedily(size_t num_scene_points, const std::vector<SceneHypothesis>& hypotheses,
+                    const SceneVerificationOptions& options,
+                    std::vector<HypothesisEvidence>* evidence) {
+  std::vector<HypothesisEvidence>& out = *evidence;
+  std::vector<uint8_t> taken(num_scene_points, 0);
+  std::vector<uint8_t> done(hypotheses.size(), 0);
+  while (true) {
+    int best = -1;
+    double best_gain = 0.0;
+    int best_duplicates = 0;
+    for (size_t h = 0; h < hypotheses.size(); ++h) {
+      if (done[h] || !out[h].passes) continue;
+      int duplicates = 0;
+      for (const int j : out[h].explained) duplicates += taken[j];
+      const int fresh = static_cast<int>(out[h].explained.size()) - duplicates;
+      const double gain = fresh - options.duplicate_weight * duplicates -
+                          options.violation_weight * out[h].violations -
+                          hypotheses[h].prior_penalty * out[h].explained.size();
+      if (gain < options.min_gain_fraction * out[h].explained.size()) continue;
+      if (best < 0 || gain > best_gain) {
+        best = static_cast<int>(h);
+        best_gain = gain;
+        best_duplicates = duplicates;
+      }
+    }
+    if (best < 0) break;
+    done[best] = 1;
+    out[best].accepted = true;
+    out[best].duplicates = best_duplicates;
+    for (const int j : out[best].explained) taken[j] = 1;
+  }
+}
+
 }  // namespace
 
 void SceneVerificationOptions::Check() const {
@@ -92,136 +261,14 @@ std::vector<HypothesisEvidence> VerifyHypotheses(
     const std::function<bool(const Eigen::Vector3f&)>& ignore) {
   options.Check();
   const DepthGrid depth(observed, options.ray_cell);
-  const float inlier2 = static_cast<float>(options.inlier_distance * options.inlier_distance);
-  const float violation = static_cast<float>(options.violation_distance);
   std::vector<HypothesisEvidence> out(hypotheses.size());
-
   for (size_t h = 0; h < hypotheses.size(); ++h) {
     const SceneHypothesis& hypothesis = hypotheses[h];
     SOPE_CHECK(hypothesis.model_cloud != nullptr && hypothesis.model_cloud->HasNormals(),
                "scene verification: hypothesis {} has no model cloud with normals", h);
-    const PointCloud& model = *hypothesis.model_cloud;
-    const Eigen::Matrix3f rotation = hypothesis.cam_from_model.rotation.cast<float>();
-    const Eigen::Vector3f translation = hypothesis.cam_from_model.translation.cast<float>();
-    HypothesisEvidence& e = out[h];
-
-    // Model points facing the camera, classified along their rays.
-    std::vector<Eigen::Vector3f> visible_points;
-    Eigen::Vector3f box_min = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
-    Eigen::Vector3f box_max = -box_min;
-    for (size_t i = 0; i < model.size(); ++i) {
-      box_min = box_min.cwiseMin(model.points[i]);
-      box_max = box_max.cwiseMax(model.points[i]);
-      const Eigen::Vector3f p = rotation * model.points[i] + translation;
-      const Eigen::Vector3f n = rotation * model.normals[i];
-      if (!(p.z() > 0.0f) || n.dot(p) >= 0.0f) continue;
-      if (ignore && ignore(p)) continue;
-      ++e.visible;
-      const float seen = depth.At(p);
-      if (!std::isfinite(seen)) {
-        ++e.empty;
-      } else if (seen > p.z() + violation) {
-        ++e.violations;
-      } else if (seen < p.z() - violation) {
-        ++e.occluded;
-      } else {
-        visible_points.push_back(p);
-      }
-    }
-    // Scene points near the model's visible surface: explained; model points near the
-    // scene: fitting.
-    const Eigen::Vector3f margin = Eigen::Vector3f::Constant(static_cast<float>(options.box_margin));
-    box_min -= margin;
-    box_max += margin;
-    const Eigen::Matrix3f model_from_cam = rotation.transpose();
-    // Explained scene points (in the box, within `distance` of a visible model point) and
-    // the fitting model points, with a grid whose window of one cell spans `distance`.
-    auto explain = [&](double distance, std::vector<int>* explained, int* fitting, int* local) {
-      const float cell = static_cast<float>(options.ray_cell * distance / options.inlier_distance);
-      const ProjectiveGrid model_grid(visible_points, {}, cell);
-      const float distance2 = static_cast<float>(distance * distance);
-      std::vector<uint8_t> fits(visible_points.size(), 0);
-      explained->clear();
-      *local = 0;
-      for (size_t j = 0; j < scene.size(); ++j) {
-        const Eigen::Vector3f q = model_from_cam * (scene.points[j] - translation);
-        const bool in_box =
-            (q.array() >= box_min.array()).all() && (q.array() <= box_max.array()).all();
-        if (!in_box) continue;
-        ++*local;
-        float d2 = 0;
-        const int nearest =
-            model_grid.Nearest(scene.points[j], Eigen::Vector3f::Zero(), 0.0f, 1, distance2, &d2);
-        if (nearest >= 0) {
-          explained->push_back(static_cast<int>(j));
-          fits[nearest] = 1;
-        }
-      }
-      // Counted from the scene side only (a visible point fits when a scene point in the box
-      // is near it), to stay symmetric with `explained`.
-      *fitting = 0;
-      for (const uint8_t f : fits) *fitting += f;
-    };
-    explain(options.inlier_distance, &e.explained, &e.fitting, &e.local);
-    const int unoccluded = std::max(1, e.visible - e.occluded - e.empty);
-    e.model_fit = std::min(1.0, static_cast<double>(e.fitting) / unoccluded);
-    e.violation_fraction = static_cast<double>(e.violations) / unoccluded;
-    e.local_explained = e.local > 0 ? static_cast<double>(e.explained.size()) / e.local : 0.0;
-    e.visible_fraction = e.visible > 0 ? static_cast<double>(e.fitting) / e.visible : 0.0;
-    const bool instance = e.model_fit >= options.min_model_fit &&
-                          e.local_explained >= options.min_local_explained &&
-                          e.violation_fraction <= options.max_violation_fraction;
-    if (!instance && hypothesis.class_probability >= options.min_class_probability &&
-        e.violation_fraction <= options.class_max_violation_fraction) {
-      // Class level: the same tests at the class inlier distance (another instance's surface
-      // lies some millimetres off the database model's), with their own thresholds.
-      std::vector<int> explained;
-      int fitting = 0, local = 0;
-      explain(options.class_inlier_distance, &explained, &fitting, &local);
-      const double fit = std::min(1.0, static_cast<double>(fitting) / unoccluded);
-      const double local_explained =
-          local > 0 ? static_cast<double>(explained.size()) / local : 0.0;
-      if (fit >= options.class_min_model_fit &&
-          local_explained >= options.class_min_local_explained && !explained.empty()) {
-        e.class_level = true;
-        e.model_fit = fit;
-        e.local_explained = local_explained;
-        e.fitting = fitting;
-        e.visible_fraction = e.visible > 0 ? static_cast<double>(fitting) / e.visible : 0.0;
-        e.explained = std::move(explained);
-      }
-    }
-    e.passes = (instance || e.class_level) && !e.explained.empty();
+    out[h] = EvaluateHypothesis(scene, hypothesis, depth, options, ignore);
   }
-
-  // Greedy global selection.
-  std::vector<uint8_t> taken(scene.size(), 0);
-  std::vector<uint8_t> done(hypotheses.size(), 0);
-  while (true) {
-    int best = -1;
-    double best_gain = 0.0;
-    int best_duplicates = 0;
-    for (size_t h = 0; h < hypotheses.size(); ++h) {
-      if (done[h] || !out[h].passes) continue;
-      int duplicates = 0;
-      for (const int j : out[h].explained) duplicates += taken[j];
-      const int fresh = static_cast<int>(out[h].explained.size()) - duplicates;
-      const double gain = fresh - options.duplicate_weight * duplicates -
-                          options.violation_weight * out[h].violations -
-                          hypotheses[h].prior_penalty * out[h].explained.size();
-      if (gain < options.min_gain_fraction * out[h].explained.size()) continue;
-      if (best < 0 || gain > best_gain) {
-        best = static_cast<int>(h);
-        best_gain = gain;
-        best_duplicates = duplicates;
-      }
-    }
-    if (best < 0) break;
-    done[best] = 1;
-    out[best].accepted = true;
-    out[best].duplicates = best_duplicates;
-    for (const int j : out[best].explained) taken[j] = 1;
-  }
+  SelectGreedily(scene.size(), hypotheses, options, &out);
   return out;
 }
 
