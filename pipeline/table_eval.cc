@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <optional>
 #include <random>
 
 #include <fmt/format.h>
@@ -20,6 +21,149 @@ namespace {
 
 double Ratio(int a, int b) { return b > 0 ? static_cast<double>(a) / b : 0.0; }
 
+// The controller's options for one evaluation scene: a single tabletop scan, nothing found
+// being a result; scans written under `out_dir`/scans unless the options name a directory.
+ScanAndRecogniseOptions SceneControllerOptions(const TableEvalOptions& options,
+                                               const std::string& out_dir) {
+  ScanAndRecogniseOptions controller_options = options.controller;
+  controller_options.tabletop = true;
+  controller_options.max_scans = 1;
+  controller_options.fail_on_nothing_found = false;
+  if (controller_options.out_dir.empty() && !out_dir.empty()) {
+    controller_options.out_dir = JoinPath(out_dir, "scans");
+  }
+  return controller_options;
+}
+
+// The virtual table of scene `k`: the options' source on the default rig (unless given),
+// with the evaluation's clutter and the scene's seed.
+VirtualTableSourceOptions SceneSourceOptions(const TableEvalOptions& options, int k) {
+  VirtualTableSourceOptions source_options = options.source;
+  if (source_options.calibration.camera.width == 0) {
+    source_options.calibration = DefaultRigCalibration();
+  }
+  source_options.patterns.projector_width = source_options.calibration.projector.width;
+  source_options.patterns.projector_height = source_options.calibration.projector.height;
+  source_options.table.clutter = options.clutter;
+  source_options.seed = options.seed + static_cast<uint64_t>(k);
+  return source_options;
+}
+
+// Scans scene `k` showing min–max distinct meshes of the options' pool, drawn with `rng`.
+ScanReport ScanMeshScene(const Database& database, const TableEvalOptions& options,
+                         const ScanAndRecogniseOptions& controller_options,
+                         VirtualTableSourceOptions source_options, int k, std::mt19937_64* rng) {
+  // This scene's objects: min–max distinct meshes of the pool.
+  std::vector<std::string> pool = options.meshes;
+  std::shuffle(pool.begin(), pool.end(), *rng);
+  const int count = std::min<int>(
+      static_cast<int>(pool.size()),
+      std::uniform_int_distribution<int>(options.min_objects, options.max_objects)(*rng));
+  source_options.table.objects.clear();
+  for (int i = 0; i < count; ++i) {
+    TableObjectSpec spec;
+    spec.spec = pool[i];
+    source_options.table.objects.push_back(spec);
+  }
+  VirtualTableSource source(source_options);
+  ScanAndRecogniseController controller(controller_options, &source, database);
+  ScanReport report = controller.Scan(0);
+  if (!controller_options.out_dir.empty()) {
+    report.index = k;
+    WriteScanOutputs(controller_options.out_dir, database, &report);
+  }
+  return report;
+}
+
+// Scans scene `k` of the procedural source (made on the first call from `source_options`);
+// empty when the scene's objects do not all fit on the visible table.
+std::optional<ScanReport> ScanProceduralScene(const Database& database,
+                                              const TableEvalOptions& options,
+                                              const ScanAndRecogniseOptions& controller_options,
+                                              VirtualTableSourceOptions source_options, int k,
+                                              std::unique_ptr<VirtualTableSource>* procedural) {
+  if (!*procedural) {
+    source_options.seed = options.seed;
+    source_options.objects = 0;  // 3–5
+    if (source_options.classes.empty()) source_options.classes = ProceduralClassesIn(database);
+    *procedural = std::make_unique<VirtualTableSource>(source_options);
+  }
+  ScanAndRecogniseController controller(controller_options, procedural->get(), database);
+  ScanReport report;
+  try {
+    report = controller.Scan(k);
+  } catch (const Error& e) {
+    // A scene whose objects do not all fit on the visible table is drawn again with
+    // the next seed by the source's next scan; counted, not evaluated.
+    if (std::string(e.what()).find("cannot place") == std::string::npos) throw;
+    spdlog::warn("scene {} skipped: {}", k, e.what());
+    return std::nullopt;
+  }
+  if (!controller_options.out_dir.empty()) {
+    WriteScanOutputs(controller_options.out_dir, database, &report);
+  }
+  return report;
+}
+
+// Adds one scanned scene's detections and truth matches to the summary's counts and errors.
+void CountScene(const ScanReport& report, TableEvalSummary* summary) {
+  ++summary->scenes;
+  SOPE_CHECK(report.truth.has_value(), "table evaluation: the source gave no ground truth");
+  summary->detections += report.scene ? static_cast<int>(report.scene->objects.size()) : 0;
+  for (const TableObjectMatch& m : report.matches) {
+    const ScanObjectTruth& truth = report.truth->objects[m.truth];
+    if (!truth.known) {
+      ++summary->clutter;
+      summary->clutter_rejected += m.detection < 0;
+      continue;
+    }
+    ++summary->known;
+    summary->correct += m.correct;
+    summary->class_correct += m.class_correct;
+    if (truth.visible_fraction >= 0.5) {
+      ++summary->visible_known;
+      summary->visible_correct += m.correct;
+    }
+    if (m.pose_error) {
+      summary->rotation_errors_deg.push_back(m.pose_error->rotation_error_deg);
+      summary->center_errors_m.push_back(m.pose_error->center_error_m);
+    }
+  }
+}
+
+// The summary's rates, median errors and per-stage median and p95 times (`stage_ms`: per
+// stage, per scene).
+void FinishSummary(const std::vector<std::vector<double>>& stage_ms, TableEvalSummary* summary) {
+  summary->recall = Ratio(summary->correct, summary->known);
+  summary->precision = Ratio(summary->correct, summary->detections);
+  summary->class_recall = Ratio(summary->class_correct, summary->known);
+  summary->rejection = Ratio(summary->clutter_rejected, summary->clutter);
+  summary->visible_recall = Ratio(summary->visible_correct, summary->visible_known);
+  if (!summary->rotation_errors_deg.empty()) {
+    summary->median_rotation_deg = Median(summary->rotation_errors_deg);
+    summary->median_center_m = Median(summary->center_errors_m);
+  }
+  for (const std::vector<double>& ms : stage_ms) {
+    summary->stage_median_ms.push_back(ms.empty() ? 0.0 : Median(ms));
+    summary->stage_p95_ms.push_back(ms.empty() ? 0.0 : Quantile(ms, 0.95));
+  }
+}
+
+// report.md, report.json and the error histograms in `out_dir`.
+void WriteTableEvalReport(const TableEvalSummary& summary, const std::string& out_dir) {
+  std::filesystem::create_directories(out_dir);
+  WriteFileAtomic(JoinPath(out_dir, "report.md"), summary.Markdown());
+  WriteFileAtomic(JoinPath(out_dir, "report.json"), summary.Json() + "\n");
+  if (summary.rotation_errors_deg.empty()) return;
+  WriteImageAtomic(JoinPath(out_dir, "rotation_errors.png"),
+                   DrawHistogram(summary.rotation_errors_deg, 0.0, 10.0, 40,
+                                 "Tabletop: rotation error (mod symmetry)", "degrees", 2.0));
+  std::vector<double> mm;
+  for (const double m : summary.center_errors_m) mm.push_back(1e3 * m);
+  WriteImageAtomic(JoinPath(out_dir, "center_errors.png"),
+                   DrawHistogram(mm, 0.0, 10.0, 40, "Tabletop: centre error", "mm", 3.0));
+}
+
 }  // namespace
 
 void TableEvalOptions::Check() const {
@@ -36,93 +180,29 @@ TableEvalSummary RunTableEvaluation(const Database& database, const TableEvalOpt
                                     const std::string& out_dir,
                                     const std::function<void(int, int)>& progress) {
   options.Check();
-  ScanAndRecogniseOptions controller_options = options.controller;
-  controller_options.tabletop = true;
-  controller_options.max_scans = 1;
-  controller_options.fail_on_nothing_found = false;
-  if (controller_options.out_dir.empty() && !out_dir.empty()) {
-    controller_options.out_dir = JoinPath(out_dir, "scans");
-  }
+  const ScanAndRecogniseOptions controller_options = SceneControllerOptions(options, out_dir);
   TableEvalSummary summary;
   summary.stage_names = {"decode", "triangulate", "segment", "recognise", "frame_to_result"};
   std::vector<std::vector<double>> stage_ms(summary.stage_names.size());
   std::mt19937_64 rng(options.seed);
   std::unique_ptr<VirtualTableSource> procedural;
   for (int k = 0; k < options.scenes; ++k) {
-    VirtualTableSourceOptions source_options = options.source;
-    if (source_options.calibration.camera.width == 0) {
-      source_options.calibration = DefaultRigCalibration();
-    }
-    source_options.patterns.projector_width = source_options.calibration.projector.width;
-    source_options.patterns.projector_height = source_options.calibration.projector.height;
-    source_options.table.clutter = options.clutter;
-    source_options.seed = options.seed + static_cast<uint64_t>(k);
+    VirtualTableSourceOptions source_options = SceneSourceOptions(options, k);
     ScanReport report;
     if (!options.meshes.empty()) {
-      // This scene's objects: min–max distinct meshes of the pool.
-      std::vector<std::string> pool = options.meshes;
-      std::shuffle(pool.begin(), pool.end(), rng);
-      const int count = std::min<int>(
-          static_cast<int>(pool.size()),
-          std::uniform_int_distribution<int>(options.min_objects, options.max_objects)(rng));
-      source_options.table.objects.clear();
-      for (int i = 0; i < count; ++i) {
-        TableObjectSpec spec;
-        spec.spec = pool[i];
-        source_options.table.objects.push_back(spec);
-      }
-      VirtualTableSource source(source_options);
-      ScanAndRecogniseController controller(controller_options, &source, database);
-      report = controller.Scan(0);
-      if (!controller_options.out_dir.empty()) {
-        report.index = k;
-        WriteScanOutputs(controller_options.out_dir, database, &report);
-      }
+      report = ScanMeshScene(database, options, controller_options, std::move(source_options), k,
+                             &rng);
     } else {
-      if (!procedural) {
-        source_options.seed = options.seed;
-        source_options.objects = 0;  // 3–5
-        if (source_options.classes.empty()) source_options.classes = ProceduralClassesIn(database);
-        procedural = std::make_unique<VirtualTableSource>(source_options);
-      }
-      ScanAndRecogniseController controller(controller_options, procedural.get(), database);
-      try {
-        report = controller.Scan(k);
-      } catch (const Error& e) {
-        // A scene whose objects do not all fit on the visible table is drawn again with
-        // the next seed by the source's next scan; counted, not evaluated.
-        if (std::string(e.what()).find("cannot place") == std::string::npos) throw;
-        spdlog::warn("scene {} skipped: {}", k, e.what());
+      std::optional<ScanReport> scanned = ScanProceduralScene(
+          database, options, controller_options, std::move(source_options), k, &procedural);
+      if (!scanned) {
         ++summary.skipped_scenes;
         if (progress) progress(k + 1, options.scenes);
         continue;
       }
-      if (!controller_options.out_dir.empty()) {
-        WriteScanOutputs(controller_options.out_dir, database, &report);
-      }
+      report = std::move(*scanned);
     }
-    ++summary.scenes;
-    SOPE_CHECK(report.truth.has_value(), "table evaluation: the source gave no ground truth");
-    summary.detections += report.scene ? static_cast<int>(report.scene->objects.size()) : 0;
-    for (const TableObjectMatch& m : report.matches) {
-      const ScanObjectTruth& truth = report.truth->objects[m.truth];
-      if (!truth.known) {
-        ++summary.clutter;
-        summary.clutter_rejected += m.detection < 0;
-        continue;
-      }
-      ++summary.known;
-      summary.correct += m.correct;
-      summary.class_correct += m.class_correct;
-      if (truth.visible_fraction >= 0.5) {
-        ++summary.visible_known;
-        summary.visible_correct += m.correct;
-      }
-      if (m.pose_error) {
-        summary.rotation_errors_deg.push_back(m.pose_error->rotation_error_deg);
-        summary.center_errors_m.push_back(m.pose_error->center_error_m);
-      }
-    }
+    CountScene(report, &summary);
     const ScanRecognitionTimings& t = report.result.timing;
     const double values[] = {t.decode, t.triangulate, t.segment, t.recognise, t.total};
     for (size_t s = 0; s < stage_ms.size(); ++s) stage_ms[s].push_back(values[s]);
@@ -130,33 +210,8 @@ TableEvalSummary RunTableEvaluation(const Database& database, const TableEvalOpt
     spdlog::info("{}", ScanReportToText(report));
     if (progress) progress(k + 1, options.scenes);
   }
-  summary.recall = Ratio(summary.correct, summary.known);
-  summary.precision = Ratio(summary.correct, summary.detections);
-  summary.class_recall = Ratio(summary.class_correct, summary.known);
-  summary.rejection = Ratio(summary.clutter_rejected, summary.clutter);
-  summary.visible_recall = Ratio(summary.visible_correct, summary.visible_known);
-  if (!summary.rotation_errors_deg.empty()) {
-    summary.median_rotation_deg = Median(summary.rotation_errors_deg);
-    summary.median_center_m = Median(summary.center_errors_m);
-  }
-  for (const std::vector<double>& ms : stage_ms) {
-    summary.stage_median_ms.push_back(ms.empty() ? 0.0 : Median(ms));
-    summary.stage_p95_ms.push_back(ms.empty() ? 0.0 : Quantile(ms, 0.95));
-  }
-  if (!out_dir.empty()) {
-    std::filesystem::create_directories(out_dir);
-    WriteFileAtomic(JoinPath(out_dir, "report.md"), summary.Markdown());
-    WriteFileAtomic(JoinPath(out_dir, "report.json"), summary.Json() + "\n");
-    if (!summary.rotation_errors_deg.empty()) {
-      WriteImageAtomic(JoinPath(out_dir, "rotation_errors.png"),
-                       DrawHistogram(summary.rotation_errors_deg, 0.0, 10.0, 40,
-                                     "Tabletop: rotation error (mod symmetry)", "degrees", 2.0));
-      std::vector<double> mm;
-      for (const double m : summary.center_errors_m) mm.push_back(1e3 * m);
-      WriteImageAtomic(JoinPath(out_dir, "center_errors.png"),
-                       DrawHistogram(mm, 0.0, 10.0, 40, "Tabletop: centre error", "mm", 3.0));
-    }
-  }
+  FinishSummary(stage_ms, &summary);
+  if (!out_dir.empty()) WriteTableEvalReport(summary, out_dir);
   return summary;
 }
 
