@@ -201,9 +201,15 @@ struct AssemblyOptions {
   bool class_ranking = true;
   int class_models = 1;
   int class_vote_views = 24;
-  double class_vote_weight = 0.1;
+  double class_vote_weight = 0.05;
   double class_temperature = 0.05;
   double ambiguity_margin = 0.25;
+  // Class screening (stages.h ScreenClasses): each of the first class_screen_classes
+  // classes of the fine ranking gets refined hypotheses of at least class_screen_models of
+  // its models (its next models by their best flagged view) when the pose search gave it
+  // fewer. 0 class_screen_classes: off (the class ranking of issue 16's first step).
+  int class_screen_classes = 4;
+  int class_screen_models = 1;
   static const std::vector<OptionField<AssemblyOptions>>& Fields();
   void Check() const;
 };
