@@ -610,14 +610,15 @@ void PrepareOutput(cv::Size size, int type, cv::Mat* image) {
 float WrappedAtan2(float y, float x) { return FastWrappedAtan2(y, x); }
 
 void FitCoordinatesLocally(const PhaseDecoderOptions& options, const cv::Mat& mask,
-                           const cv::Mat& confidence, double noise_scale, cv::Mat* coordinate) {
+                           const cv::Mat& confidence, double noise_scale, cv::Mat* coordinate,
+                           int num_threads) {
   const int rows = mask.rows, cols = mask.cols, r = options.local_fit_radius;
   const float min_tolerance = static_cast<float>(options.local_fit_tolerance_px);
   const float sigmas = static_cast<float>(kLocalFitSigmas * noise_scale);
   const int min_samples = 2 * r + 3;
   const cv::Mat raw = coordinate->clone();
   const int window = (2 * r + 1) * (2 * r + 1);
-  cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
+  const auto fit_rows = [&](const cv::Range& range) {
     std::vector<float> dxs(window), dys(window), us(window);
     for (int y = range.start; y < range.end; ++y) {
       const uint8_t* valid = mask.ptr<uint8_t>(y);
@@ -647,6 +648,40 @@ void FitCoordinatesLocally(const PhaseDecoderOptions& options, const cv::Mat& ma
         };
         const float slope_x = minmod(one_sided(1, 0), one_sided(-1, 0));
         const float slope_y = minmod(one_sided(0, 1), one_sided(0, -1));
+        // The common case first: a 3×3 window all on the surface, where the plane's centre
+        // value is the window's mean and its slopes Σdx·u/6, Σdy·u/6.
+        if (r == 1 && x > 0 && x + 1 < cols && y > 0 && y + 1 < rows) {
+          const uint8_t* m0 = mask.ptr<uint8_t>(y - 1);
+          const uint8_t* m2 = mask.ptr<uint8_t>(y + 1);
+          if ((m0[x - 1] & m0[x] & m0[x + 1] & valid[x - 1] & valid[x + 1] & m2[x - 1] & m2[x] &
+               m2[x + 1]) != 0) {
+            const float* u0 = raw.ptr<float>(y - 1);
+            const float* u2 = raw.ptr<float>(y + 1);
+            const float d[9] = {u0[x - 1] - centre, u0[x] - centre, u0[x + 1] - centre,
+                                centre_row[x - 1] - centre, 0.0f, centre_row[x + 1] - centre,
+                                u2[x - 1] - centre, u2[x] - centre, u2[x + 1] - centre};
+            bool all_in = true;
+            float sum = 0.0f, sum_x = 0.0f, sum_y = 0.0f;
+            for (int k = 0; k < 9; ++k) {
+              const float dx = static_cast<float>(k % 3 - 1), dy = static_cast<float>(k / 3 - 1);
+              all_in &= std::abs(d[k] - slope_x * dx - slope_y * dy) <= tolerance;
+              sum += d[k];
+              sum_x += dx * d[k];
+              sum_y += dy * d[k];
+            }
+            if (all_in) {
+              const float a = sum / 9.0f, b = sum_x / 6.0f, c = sum_y / 6.0f;
+              for (int k = 0; k < 9; ++k) {
+                const float dx = static_cast<float>(k % 3 - 1), dy = static_cast<float>(k / 3 - 1);
+                all_in &= std::abs(d[k] - a - b * dx - c * dy) <= tolerance;
+              }
+              if (all_in) {
+                out[x] = centre + a;
+                continue;
+              }
+            }
+          }
+        }
         int n = 0;
         for (int dy = -r; dy <= r; ++dy) {
           const int ny = y + dy;
@@ -711,7 +746,12 @@ void FitCoordinatesLocally(const PhaseDecoderOptions& options, const cv::Mat& ma
         if (fitted) out[x] = centre + value;
       }
     }
-  });
+  };
+  if (num_threads > 1) {
+    cv::parallel_for_(cv::Range(0, rows), fit_rows, num_threads);
+  } else {
+    fit_rows(cv::Range(0, rows));
+  }
 }
 
 
@@ -875,7 +915,7 @@ void DecodePhase(const FrameSet& frame_set, const DecoderOptions& options, Corre
       const double noise_scale =
           finest.period / (internal::kTwoPiD * std::sqrt(0.5 * finest.frames.size()));
       internal::FitCoordinatesLocally(options.phase, map->mask, map->confidence, noise_scale,
-                                      &coordinate);
+                                      &coordinate, options.num_threads);
     }
   }
 }
