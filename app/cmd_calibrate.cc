@@ -168,6 +168,14 @@ int RunCalibrate(int argc, char** argv) {
   app.add_flag("--no-subpixel", no_subpixel,
                "Use the integer Gray codes as decoded (no sub-pixel refinement from the "
                "stripe-edge contrasts before the local homographies)");
+  bool whole_boards = false;
+  app.add_flag("--whole-boards", whole_boards,
+               "Use only views that show the whole board (by default a view whose board runs "
+               "out of the image is used with its visible corners)");
+  app.add_option("--min-partial-fraction", options.detection.min_partial_corner_fraction,
+                 "A board partly out of the image is used when at least this fraction of its "
+                 "corners is in view (and >= 3 along each side)")
+      ->capture_default_str();
   app.add_option("--window-fraction", options.local_homography.window_fraction,
                  "Local homography half window, fraction of the square size in camera pixels")
       ->capture_default_str();
@@ -199,6 +207,7 @@ int RunCalibrate(int argc, char** argv) {
   options.projector_distortion = DistortionTermsFromString(projector_terms);
   options.loss = RobustLossFromString(loss);
   options.subpixel_codes = !no_subpixel;
+  options.detection.partial = !whole_boards;
   options.decoder = decoder_flags.ToOptions();
   options.num_threads = options.decoder.num_threads;
   options.Check();

@@ -2,6 +2,7 @@
 // sope simulate --board COLSxROWSxSQUARE_M --views N [--rig RIG.yaml] --out DIR
 // sope simulate --table --mesh A --mesh B ... [--seed N] [--clutter K] [--no-backdrop] --out DIR
 #include <cmath>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -105,6 +106,88 @@ int RunTableSimulation(const std::vector<std::string>& meshes, double size,
   return 0;
 }
 
+// `simulate --board`: a calibration sequence, one frame set per board pose.
+int RunBoardSimulation(const std::string& board_text, BoardSequenceOptions board_options,
+                       const SensorOptions& sensor, const RigCalibration& calibration,
+                       const PatternOptions& patterns, const std::string& out) {
+  const BoardSpec board = BoardSpecFromString(board_text);
+  board_options.patterns = patterns;
+  board_options.Check();
+  VirtualRig rig(calibration, sensor);
+  cli::Progress progress("rendering board views", board_options.num_views);
+  WriteBoardSequence(out, rig, board, board_options,
+                     [&](int done, int) { progress.Update(done); });
+  spdlog::info("rendered {} views of a {} board ({} frames each) -> {}", board_options.num_views,
+               board.ToString(),
+               MakePatternManifest(patterns, calibration.camera.width, calibration.camera.height)
+                   .frames.size(),
+               out);
+  return 0;
+}
+
+// `simulate --mesh`: one object, optionally before a backdrop (empty: the flag was not given).
+struct SingleObjectScene {
+  std::string mesh_path;
+  std::string pose_text;
+  std::optional<double> size;
+  std::optional<double> backdrop;
+};
+
+int RunSingleObjectSimulation(const SingleObjectScene& object, const SensorOptions& sensor,
+                              const RigCalibration& calibration, const PatternOptions& patterns,
+                              bool allow_empty, const std::string& out) {
+  const Rigid3d pose = cli::ParsePose(object.pose_text, "--object-pose");
+  const double farthest_coordinate = pose.translation.cwiseAbs().maxCoeff();
+  SOPE_CHECK(farthest_coordinate <= kMaxSceneDistance,
+             "--object-pose '{}': a centre coordinate of {:.3g} m is beyond {} m", object.pose_text,
+             farthest_coordinate, kMaxSceneDistance);
+  SOPE_CHECK(!object.size ||
+                 (std::isfinite(*object.size) && *object.size > 0.0 &&
+                  *object.size <= kMaxSceneDistance),
+             "--object-size must be in (0, {}] m, got {}", kMaxSceneDistance, *object.size);
+  SOPE_CHECK(!object.backdrop ||
+                 (std::isfinite(*object.backdrop) && *object.backdrop > 0.0 &&
+                  *object.backdrop <= kMaxSceneDistance),
+             "--backdrop must be a depth in (0, {}] m, got {}", kMaxSceneDistance,
+             *object.backdrop);
+  const TriangleMesh mesh = LoadMeshSpec(object.mesh_path);
+  const double mesh_diagonal = mesh.BoundingDiagonal();
+  SOPE_CHECK(std::isfinite(mesh_diagonal) && mesh_diagonal > 0.0,
+             "mesh {}: its extent ({} units) is not a usable size", object.mesh_path,
+             mesh_diagonal);
+  Placement placement;
+  placement.rotation = pose.rotation;
+  placement.center_in_cam = pose.translation;
+  if (object.size) {
+    placement.size = *object.size;
+  } else {
+    const double diagonal = mesh.BoundingDiagonal();
+    if (!IsPlausibleDiagonal(diagonal)) {
+      placement.size = kDefaultObjectSize;
+      spdlog::info("mesh diagonal is {:.3g} units: scaling it to {} m (use --object-size)",
+                   diagonal, kDefaultObjectSize);
+    }
+  }
+  Scene scene;
+  scene.objects.push_back(PlaceObject(mesh, placement));
+  if (object.backdrop) {
+    const double depth = *object.backdrop;
+    scene.objects.push_back(MakeBackdrop(depth, 4 * depth, 3 * depth));
+  }
+
+  VirtualRig rig(calibration, sensor);
+  const SimulatedScan scan = SimulateScan(rig, scene, patterns);
+  const int lit = cv::countNonZero(scan.ground_truth.lit);
+  SOPE_CHECK(lit > 0 || allow_empty,
+             "no camera pixel sees the object lit by the projector (is it in front of both, "
+             "within their fields of view? --allow-empty writes the empty frame set anyway)");
+  WriteSimulatedScan(out, scan);
+  spdlog::info("rendered {} frames ({}x{} camera, {}x{} projector), {} pixels lit -> {}",
+               scan.frames.images.size(), calibration.camera.width, calibration.camera.height,
+               calibration.projector.width, calibration.projector.height, lit, out);
+  return 0;
+}
+
 }  // namespace
 
 int RunSimulate(int argc, char** argv) {
@@ -115,7 +198,7 @@ int RunSimulate(int argc, char** argv) {
                "DIR/calibration_true.yaml and DIR/gt_board_poses.json.",
                "sope simulate"};
   std::vector<std::string> mesh_paths;
-  std::string mesh_path, pose_text = "0,0,0,0,0,0.6", rig_path, out;
+  std::string pose_text = "0,0,0,0,0,0.6", rig_path, out;
   double size = -1.0, backdrop = 0.0;
   SensorFlags sensor_flags;
   SensorOptions& sensor = sensor_flags.sensor;
@@ -137,6 +220,10 @@ int RunSimulate(int argc, char** argv) {
   app.add_option("--views", board_options.num_views, "--board: number of board poses")
       ->capture_default_str();
   app.add_option("--pose-seed", board_options.seed, "--board: seed of the random board poses")
+      ->capture_default_str();
+  app.add_option("--partial-views", board_options.partial_fraction,
+                 "--board: fraction of the views whose board runs partly out of the camera "
+                 "image (10-40% of its corners outside; 0 = every board in full view)")
       ->capture_default_str();
   app.add_option("--object-pose", pose_text,
                  "Object rotation (degrees, R = Rz*Ry*Rx) and bounding-box centre (metres) "
@@ -167,19 +254,7 @@ int RunSimulate(int argc, char** argv) {
       pattern_flags.ToOptions(calibration.projector.width, calibration.projector.height);
   if (!board_text.empty()) {
     SOPE_CHECK(!table_flags.table, "--board and --table exclude each other");
-    const BoardSpec board = BoardSpecFromString(board_text);
-    board_options.patterns = patterns;
-    board_options.Check();
-    VirtualRig rig(calibration, sensor);
-    cli::Progress progress("rendering board views", board_options.num_views);
-    WriteBoardSequence(out, rig, board, board_options,
-                       [&](int done, int) { progress.Update(done); });
-    spdlog::info("rendered {} views of a {} board ({} frames each) -> {}", board_options.num_views,
-                 board.ToString(),
-                 MakePatternManifest(patterns, calibration.camera.width, calibration.camera.height)
-                     .frames.size(),
-                 out);
-    return 0;
+    return RunBoardSimulation(board_text, board_options, sensor, calibration, patterns, out);
   }
   if (table_flags.table) {
     SOPE_CHECK(backdrop_option->count() == 0,
@@ -195,51 +270,13 @@ int RunSimulate(int argc, char** argv) {
   SOPE_CHECK(!no_backdrop, "--no-backdrop is for --table (single objects: omit --backdrop)");
   SOPE_CHECK(mesh_paths.size() <= 1, "--mesh given {} times: several meshes need --table",
              mesh_paths.size());
-  if (!mesh_paths.empty()) mesh_path = mesh_paths[0];
-  SOPE_CHECK(!mesh_path.empty(), "one of --mesh or --board is required");
-  const Rigid3d pose = cli::ParsePose(pose_text, "--object-pose");
-  const double farthest_coordinate = pose.translation.cwiseAbs().maxCoeff();
-  SOPE_CHECK(farthest_coordinate <= kMaxSceneDistance,
-             "--object-pose '{}': a centre coordinate of {:.3g} m is beyond {} m", pose_text,
-             farthest_coordinate, kMaxSceneDistance);
-  SOPE_CHECK(size_option->count() == 0 ||
-                 (std::isfinite(size) && size > 0.0 && size <= kMaxSceneDistance),
-             "--object-size must be in (0, {}] m, got {}", kMaxSceneDistance, size);
-  SOPE_CHECK(backdrop_option->count() == 0 ||
-                 (std::isfinite(backdrop) && backdrop > 0.0 && backdrop <= kMaxSceneDistance),
-             "--backdrop must be a depth in (0, {}] m, got {}", kMaxSceneDistance, backdrop);
-  const TriangleMesh mesh = LoadMeshSpec(mesh_path);
-  const double mesh_diagonal = mesh.BoundingDiagonal();
-  SOPE_CHECK(std::isfinite(mesh_diagonal) && mesh_diagonal > 0.0,
-             "mesh {}: its extent ({} units) is not a usable size", mesh_path, mesh_diagonal);
-  Placement placement;
-  placement.rotation = pose.rotation;
-  placement.center_in_cam = pose.translation;
-  if (size >= 0) {
-    placement.size = size;
-  } else {
-    const double diagonal = mesh.BoundingDiagonal();
-    if (!IsPlausibleDiagonal(diagonal)) {
-      placement.size = kDefaultObjectSize;
-      spdlog::info("mesh diagonal is {:.3g} units: scaling it to {} m (use --object-size)",
-                   diagonal, kDefaultObjectSize);
-    }
-  }
-  Scene scene;
-  scene.objects.push_back(PlaceObject(mesh, placement));
-  if (backdrop > 0) scene.objects.push_back(MakeBackdrop(backdrop, 4 * backdrop, 3 * backdrop));
-
-  VirtualRig rig(calibration, sensor);
-  const SimulatedScan scan = SimulateScan(rig, scene, patterns);
-  const int lit = cv::countNonZero(scan.ground_truth.lit);
-  SOPE_CHECK(lit > 0 || allow_empty,
-             "no camera pixel sees the object lit by the projector (is it in front of both, "
-             "within their fields of view? --allow-empty writes the empty frame set anyway)");
-  WriteSimulatedScan(out, scan);
-  spdlog::info("rendered {} frames ({}x{} camera, {}x{} projector), {} pixels lit -> {}",
-               scan.frames.images.size(), calibration.camera.width, calibration.camera.height,
-               calibration.projector.width, calibration.projector.height, lit, out);
-  return 0;
+  SOPE_CHECK(!mesh_paths.empty(), "one of --mesh or --board is required");
+  SingleObjectScene object;
+  object.mesh_path = mesh_paths[0];
+  object.pose_text = pose_text;
+  if (size_option->count() > 0) object.size = size;
+  if (backdrop_option->count() > 0) object.backdrop = backdrop;
+  return RunSingleObjectSimulation(object, sensor, calibration, patterns, allow_empty, out);
 }
 
 }  // namespace sope

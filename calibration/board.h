@@ -73,6 +73,23 @@ struct BoardDetectionOptions {
   double subpix_window_fraction = 0.35;
   int max_subpix_half_window_px = 15;
 
+  // DetectBoard: when the whole board is not found, accept the largest visible grid of
+  // its corners (cv::findChessboardCornersSB with CALIB_CB_LARGER; whatever `detector`)
+  // provided the missing part plausibly lies outside the image (see DetectBoard) and the
+  // grid has at least 3 corners along each side and min_partial_corner_fraction of the
+  // board's corners.
+  bool partial = true;
+  double min_partial_corner_fraction = 0.3;
+  // A side of the visible grid counts as cut by the image border when a corner of the
+  // grid extended by one square on that side lies outside the image or closer to its
+  // edge than this many local squares (its squares are cut, so no detector finds it).
+  double partial_edge_squares = 0.5;
+  // Corners of a partial grid closer to the image edge than this many local squares are
+  // left out (the largest sub-grid without them is kept): their squares are cut, and SB
+  // places them worse (on synthetic boards 0.2–0.45 px off at 0.25–0.6 squares from the
+  // edge, against < 0.1 px inside).
+  double partial_corner_edge_squares = 1.0;
+
   // Throws sope::Error naming an invalid value.
   void Check() const;
 };
@@ -86,5 +103,37 @@ struct BoardDetectionOptions {
 // corner 0 is the end nearer the image's top-left.
 std::optional<std::vector<Eigen::Vector2d>> DetectBoardCorners(
     const cv::Mat& image, const BoardSpec& board, const BoardDetectionOptions& options = {});
+
+// The corners of a board found in an image, all of them or a part.
+struct BoardDetection {
+  // Row-major over the visible grid (grid_cols per row): camera pixels.
+  std::vector<Eigen::Vector2d> corners;
+  // The BoardSpec corner index (r·cols + c) each entry is labelled with.
+  std::vector<int> indices;
+  int grid_cols = 0;
+  int grid_rows = 0;
+  // True when only part of the board was visible. Its labelling is then the board's up to
+  // a shift by whole squares and a quarter turn in the board plane (which corner of the
+  // board is corner 0 of the visible grid cannot be told): a right-handed grid with z away
+  // from the camera and the true square size, so every view still gives a valid board
+  // pose in a frame of its own.
+  bool partial = false;
+  // The visible grid as a board of its own (grid_cols × grid_rows, the same squares).
+  BoardSpec GridSpec(const BoardSpec& board) const;
+};
+
+// DetectBoardCorners, and when the whole board is not found (options.partial) its largest
+// visible grid (SB with CALIB_CB_LARGER on the image padded with its mean grey, so that a
+// grid may run up to the edge). The grid is accepted when it fits inside the board
+// (either way round) and every direction along which corners are missing has a side cut
+// by the image border: a corner one square beyond it, extrapolated from the last two, is
+// outside the image or within options.partial_edge_squares squares of its edge. A board
+// fully in view with fewer corners than `board` is thereby not taken for a part of it.
+// Then the largest sub-grid without corners within options.partial_corner_edge_squares
+// of the edge is kept; it must have at least 3 × 3 corners and
+// options.min_partial_corner_fraction of the board's. Returns nullopt when neither is
+// found.
+std::optional<BoardDetection> DetectBoard(const cv::Mat& image, const BoardSpec& board,
+                                          const BoardDetectionOptions& options = {});
 
 }  // namespace sope

@@ -3,6 +3,7 @@
 #include "calibration/board.h"
 
 #include <cmath>
+#include <cstdio>
 
 #include <Eigen/Dense>
 #include <gtest/gtest.h>
@@ -158,6 +159,122 @@ TEST(DetectBoardCorners, SixteenBitImagesAndAbsentBoards) {
   EXPECT_FALSE(DetectBoardCorners(cv::Mat(480, 640, CV_8UC1, cv::Scalar(90)), board));
   EXPECT_THROW_WITH_MESSAGE(DetectBoardCorners(cv::Mat(480, 640, CV_32FC1), board), Error,
                             "got CV_32FC1");
+}
+
+// The true grid position (column, row) of every found corner, by the nearest true corner;
+// fails unless each is within 0.15 px of one.
+std::vector<Eigen::Vector2i> TrueGridPositions(const BoardSpec& board,
+                                               const std::vector<Eigen::Vector2d>& found,
+                                               const std::vector<Eigen::Vector2d>& truth) {
+  std::vector<Eigen::Vector2i> positions;
+  for (const Eigen::Vector2d& p : found) {
+    int best = 0;
+    for (int k = 1; k < board.NumCorners(); ++k) {
+      if ((truth[k] - p).norm() < (truth[best] - p).norm()) best = k;
+    }
+    EXPECT_LT((truth[best] - p).norm(), 0.15) << p.transpose();
+    positions.emplace_back(best % board.cols, best / board.cols);
+  }
+  return positions;
+}
+
+// A partial detection labels its grid as the board up to a quarter turn and a shift by
+// whole squares: true (C, R) = M·(c, r) + offset with M a rotation (det +1, not a mirror).
+void ExpectProperLabelling(const BoardSpec& board, const BoardDetection& detection,
+                           const std::vector<Eigen::Vector2d>& truth) {
+  ASSERT_EQ(detection.corners.size(), detection.indices.size());
+  const std::vector<Eigen::Vector2i> positions =
+      TrueGridPositions(board, detection.corners, truth);
+  const auto labelled = [&](size_t i) {
+    return Eigen::Vector2i(detection.indices[i] % board.cols, detection.indices[i] / board.cols);
+  };
+  // The labels' grid neighbours of entry 0: entries 1 (c + 1) and grid_cols (r + 1).
+  Eigen::Matrix2i m;
+  m.col(0) = positions[1] - positions[0];
+  m.col(1) = positions[detection.grid_cols] - positions[0];
+  EXPECT_EQ(m.determinant(), 1) << m;
+  EXPECT_EQ(m.cwiseAbs().sum(), 2) << m;
+  const Eigen::Vector2i offset = positions[0] - m * labelled(0);
+  for (size_t i = 0; i < positions.size(); ++i) {
+    EXPECT_EQ(positions[i], m * labelled(i) + offset) << "entry " << i;
+  }
+}
+
+TEST(DetectBoard, TakesAPartCutByTheImageBorderWithAProperLabelling) {
+  const BoardSpec board = BoardSpecFromString("9x6x0.03");
+  const Eigen::Vector3d center(0.12, 0.075, 0.0);
+  // Off the left edge, off the bottom (rolled and tilted), off a corner.
+  const std::vector<std::pair<Eigen::Vector3d, double>> placements = {
+      {Eigen::Vector3d(-0.2, 0.0, 0.75), 0.0},
+      {Eigen::Vector3d(0.0, 0.11, 0.75), 0.3},
+      {Eigen::Vector3d(0.17, -0.1, 0.75), M_PI}};
+  for (const auto& [where, roll] : placements) {
+    SCOPED_TRACE(::testing::Message() << "board centre " << where.transpose() << " roll " << roll);
+    const Eigen::Matrix3d rotation = (Eigen::AngleAxisd(roll, Eigen::Vector3d::UnitZ()) *
+                                      Eigen::AngleAxisd(0.3, Eigen::Vector3d(0.6, 0.8, 0.0)))
+                                         .toRotationMatrix();
+    const Synthetic synthetic = RenderBoard(
+        board, ImageFromBoard(rotation, where - rotation * center), cv::Size(640, 480));
+    // The whole board is not in view ...
+    ASSERT_FALSE(DetectBoardCorners(synthetic.image, board));
+    BoardDetectionOptions whole_only;
+    whole_only.partial = false;
+    EXPECT_FALSE(DetectBoard(synthetic.image, board, whole_only));
+    // ... a part is.
+    const auto detection = DetectBoard(synthetic.image, board);
+    ASSERT_TRUE(detection.has_value());
+    EXPECT_TRUE(detection->partial);
+    EXPECT_LT(detection->corners.size(), 54u);
+    EXPECT_GE(detection->corners.size(), 0.3 * 54);
+    EXPECT_EQ(static_cast<int>(detection->corners.size()),
+              detection->grid_cols * detection->grid_rows);
+    EXPECT_LE(detection->grid_cols, 9);
+    EXPECT_LE(detection->grid_rows, 6);
+    std::printf("[partial] %dx%d of 9x6 in view\n", detection->grid_cols, detection->grid_rows);
+    ExpectProperLabelling(board, *detection, synthetic.corners);
+  }
+}
+
+TEST(DetectBoard, WholeBoardsAndPartsNotCutByTheBorder) {
+  const BoardSpec board = BoardSpecFromString("9x6x0.03");
+  const Eigen::Matrix3d rotation =
+      Eigen::AngleAxisd(0.3, Eigen::Vector3d(0.6, 0.8, 0.0)).toRotationMatrix();
+  const Synthetic synthetic =
+      RenderBoard(board, ImageFromBoard(rotation, Eigen::Vector3d(-0.12, -0.075, 0.75)),
+                  cv::Size(640, 480));
+  // In full view: the whole board, canonical, not partial.
+  const auto whole = DetectBoard(synthetic.image, board);
+  ASSERT_TRUE(whole.has_value());
+  EXPECT_FALSE(whole->partial);
+  ASSERT_EQ(whole->indices.size(), 54u);
+  EXPECT_EQ(whole->indices[53], 53);
+  EXPECT_LT(MaxError(whole->corners, synthetic.corners), 0.1);
+  // Told a larger board than the one in full view: not a part of it (the grid extended by
+  // a square stays well inside the image, on the white margin).
+  for (const char* larger : {"10x6x0.03", "9x7x0.03", "12x8x0.03", "7x9x0.03"}) {
+    EXPECT_FALSE(DetectBoard(synthetic.image, BoardSpecFromString(larger))) << larger;
+  }
+  // Told a smaller one: the grid in view does not fit it.
+  EXPECT_FALSE(DetectBoard(synthetic.image, BoardSpecFromString("8x6x0.03")));
+  // Two columns hidden inside the image (a dark patch over them): missing, but not cut by
+  // the border, so refused.
+  cv::Mat occluded = synthetic.image.clone();
+  cv::Point2f lo(1e9f, 1e9f), hi(-1e9f, -1e9f);
+  for (int r = 0; r < 6; ++r) {
+    for (int c = 7; c < 9; ++c) {
+      const Eigen::Vector2d& p = synthetic.corners[r * 9 + c];
+      lo = cv::Point2f(std::min<float>(lo.x, p.x()), std::min<float>(lo.y, p.y()));
+      hi = cv::Point2f(std::max<float>(hi.x, p.x()), std::max<float>(hi.y, p.y()));
+    }
+  }
+  const float pad = 30.0f;
+  cv::rectangle(occluded, cv::Point2f(lo.x - 0.4f * pad, lo.y - 2 * pad),
+                cv::Point2f(hi.x + 2 * pad, hi.y + 2 * pad), cv::Scalar(120), cv::FILLED);
+  EXPECT_FALSE(DetectBoardCorners(occluded, board));
+  EXPECT_FALSE(DetectBoard(occluded, board));
+  BoardDetectionOptions options;
+  options.min_partial_corner_fraction = 1.5;
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "min_partial_corner_fraction", "1.5");
 }
 
 }  // namespace

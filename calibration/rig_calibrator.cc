@@ -129,8 +129,8 @@ struct ViewResiduals {
 ViewResiduals ComputeResiduals(const BoardSpec& board, const BoardObservation& observation,
                                const RigState& state, const PoseBlock& cam_from_board) {
   ViewResiduals residuals;
-  for (int k = 0; k < board.NumCorners(); ++k) {
-    const Eigen::Vector3d corner = board.CornerInBoard(k);
+  for (size_t k = 0; k < observation.camera_corners.size(); ++k) {
+    const Eigen::Vector3d corner = board.CornerInBoard(observation.CornerIndex(k));
     Eigen::Vector2d residual;
     CameraReprojectionError(corner.data(), observation.camera_corners[k].data())(
         state.camera.intrinsics.data(), state.camera.distortion.data(), cam_from_board.data(),
@@ -183,8 +183,8 @@ ceres::Solver::Summary Adjust(const BoardSpec& board,
   for (int v : active) {
     const BoardObservation& observation = *observations[v];
     double* pose = state->cam_from_board[v].data();
-    for (int k = 0; k < board.NumCorners(); ++k) {
-      const Eigen::Vector3d corner = board.CornerInBoard(k);
+    for (size_t k = 0; k < observation.camera_corners.size(); ++k) {
+      const Eigen::Vector3d corner = board.CornerInBoard(observation.CornerIndex(k));
       problem.AddResidualBlock(
           new ceres::AutoDiffCostFunction<CameraReprojectionError, 2, kIntrinsicsSize,
                                           kDistortionSize, kPoseSize>(
@@ -414,8 +414,11 @@ std::string CalibrationSummary::BriefReport() const {
   const int given = static_cast<int>(views.size());
   std::string report = fmt::format(
       "Rig calibration, board {} (inner corners x square, m)\n"
-      "  {:<14}{} given: {} used, {} dropped, {} without the board\n",
-      board.ToString(), "views", given, num_views_used, num_views_dropped, num_views_without_board);
+      "  {:<14}{} given: {} used, {} dropped, {} without the board{}\n",
+      board.ToString(), "views", given, num_views_used, num_views_dropped, num_views_without_board,
+      num_partial_views_used > 0
+          ? fmt::format("; {} used with the board partly in view", num_partial_views_used)
+          : "");
   report += internal::FormatDevice("camera", calibration.camera, calibration.rms_camera_px,
                                    num_camera_corners);
   report += internal::FormatDevice("projector", calibration.projector, calibration.rms_projector_px,
@@ -497,9 +500,9 @@ std::optional<BoardObservation> RigCalibrator::AddFrameSet(const FrameSet& frame
   // Without a white frame the board is found in the phase texture (mean + amplitude of the
   // finest group: what a white frame would show).
   const cv::Mat board_image = white ? frames.Image(*white) : SynthesizePhaseTexture(frames);
-  const std::optional<std::vector<Eigen::Vector2d>> corners =
-      DetectBoardCorners(board_image, board_, options_.detection);
-  if (!corners) {
+  const std::optional<BoardDetection> detection =
+      DetectBoard(board_image, board_, options_.detection);
+  if (!detection) {
     spdlog::warn("view {}: board {} not found in the {}; view skipped", name,
                  board_.PatternSizeString(), white ? "white frame" : "phase texture");
     views_.push_back(view);
@@ -511,10 +514,19 @@ std::optional<BoardObservation> RigCalibrator::AddFrameSet(const FrameSet& frame
   const CorrespondenceMap map = Decode(frames, decoder);
   BoardObservation observation;
   observation.name = name;
-  observation.camera_corners = *corners;
-  observation.projector_corners =
-      FindProjectorCorners(map, board_, *corners, options_.local_homography);
-  spdlog::debug("view {}: {} corners, {} seen by the projector", name, corners->size(),
+  observation.camera_corners = detection->corners;
+  if (detection->partial) {
+    observation.corner_indices = detection->indices;
+    observation.partial = true;
+  }
+  // The visible grid as a board of its own: the neighbours of each corner.
+  observation.projector_corners = FindProjectorCorners(
+      map, detection->GridSpec(board_), detection->corners, options_.local_homography);
+  spdlog::debug("view {}: {} corners{}, {} seen by the projector", name,
+                detection->corners.size(),
+                detection->partial ? fmt::format(" ({}x{} of the board in view)",
+                                                 detection->grid_cols, detection->grid_rows)
+                                   : "",
                 observation.NumProjectorCorners());
   view.observation = observation;
   views_.push_back(view);
@@ -523,7 +535,15 @@ std::optional<BoardObservation> RigCalibrator::AddFrameSet(const FrameSet& frame
 }
 
 void RigCalibrator::AddObservation(const BoardObservation& observation, const DeviceSizes& sizes) {
-  SOPE_CHECK(static_cast<int>(observation.camera_corners.size()) == board_.NumCorners() &&
+  const int expected = observation.corner_indices.empty()
+                           ? board_.NumCorners()
+                           : static_cast<int>(observation.corner_indices.size());
+  for (int index : observation.corner_indices) {
+    SOPE_CHECK(index >= 0 && index < board_.NumCorners(),
+               "view {}: corner index {} is not a corner of a {} board ({} corners)",
+               observation.name, index, board_.PatternSizeString(), board_.NumCorners());
+  }
+  SOPE_CHECK(static_cast<int>(observation.camera_corners.size()) == expected &&
                  observation.projector_corners.size() == observation.camera_corners.size(),
              "view {}: {} camera and {} projector corners for a {} board ({} corners)",
              observation.name, observation.camera_corners.size(),
@@ -566,11 +586,12 @@ CalibrationSummary RigCalibrator::Calibrate() const {
   {
     std::vector<std::vector<Eigen::Vector2d>> corners;
     std::vector<std::vector<int>> indices;
-    std::vector<int> all(board_.NumCorners());
-    for (int k = 0; k < board_.NumCorners(); ++k) all[k] = k;
     for (const BoardObservation* observation : observations) {
       corners.push_back(observation->camera_corners);
-      indices.push_back(all);
+      indices.emplace_back();
+      for (size_t k = 0; k < observation->camera_corners.size(); ++k) {
+        indices.back().push_back(observation->CornerIndex(k));
+      }
     }
     summary.initial_rms_camera_px =
         CalibrateDevice(board_, corners, indices, sizes.camera_width, sizes.camera_height,
@@ -591,10 +612,10 @@ CalibrationSummary RigCalibrator::Calibrate() const {
       if (observation.NumProjectorCorners() < min_corners) continue;
       corners.emplace_back();
       indices.emplace_back();
-      for (int k = 0; k < board_.NumCorners(); ++k) {
+      for (size_t k = 0; k < observation.projector_corners.size(); ++k) {
         if (!observation.projector_corners[k]) continue;
         corners.back().push_back(*observation.projector_corners[k]);
-        indices.back().push_back(k);
+        indices.back().push_back(observation.CornerIndex(k));
       }
       projector_views.push_back(i);
     }
@@ -669,6 +690,7 @@ CalibrationSummary RigCalibrator::Calibrate() const {
     const ViewResiduals residuals =
         ComputeResiduals(board_, *observations[i], state, state.cam_from_board[i]);
     report.board_found = true;
+    report.partial = observations[i]->partial;
     report.used = drop_reason[i].empty();
     report.status = report.used ? "used" : drop_reason[i];
     report.camera_corners = static_cast<int>(residuals.camera.size());
@@ -681,6 +703,7 @@ CalibrationSummary RigCalibrator::Calibrate() const {
     report.projector_residuals_px = residuals.projector;
     if (report.used) {
       ++summary.num_views_used;
+      if (report.partial) ++summary.num_partial_views_used;
       summary.num_camera_corners += report.camera_corners;
       summary.num_projector_corners += report.projector_corners;
       camera_sum += residuals.SumSquaredCamera();

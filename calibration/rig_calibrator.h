@@ -81,12 +81,20 @@ struct CalibrationOptions {
 // The corners of one board view as measured in both devices.
 struct BoardObservation {
   std::string name;
-  // board.NumCorners() entries: corner k of BoardSpec in the camera, pixels.
+  // Entry i is board corner CornerIndex(i) in the camera, pixels: board.NumCorners()
+  // entries in corner order when corner_indices is empty (the whole board), else one per
+  // entry of corner_indices (a board partly in view, BoardDetection::indices).
   std::vector<Eigen::Vector2d> camera_corners;
-  // Same size: corner k in the projector, pixels; nullopt where the projector did not see
-  // it well enough.
+  // Same size: the same corners in the projector, pixels; nullopt where the projector did
+  // not see them well enough.
   std::vector<std::optional<Eigen::Vector2d>> projector_corners;
+  std::vector<int> corner_indices;
+  // Only part of the board was in view (its labelling then has a board frame of its own).
+  bool partial = false;
   int NumProjectorCorners() const;
+  int CornerIndex(size_t i) const {
+    return corner_indices.empty() ? static_cast<int>(i) : corner_indices[i];
+  }
 };
 
 struct DeviceSizes {
@@ -101,6 +109,7 @@ struct CalibrationViewReport {
   std::string name;
   bool board_found = false;
   bool used = false;   // in the final adjustment
+  bool partial = false;  // only part of the board in view (BoardDetection::partial)
   std::string status;  // "used", "board not found", "dropped: <reason>"
   int camera_corners = 0;
   int projector_corners = 0;
@@ -123,6 +132,7 @@ struct CalibrationSummary {
   int num_views_used = 0;
   int num_views_dropped = 0;
   int num_views_without_board = 0;
+  int num_partial_views_used = 0;  // used views with the board partly in view
   int num_camera_corners = 0;     // in the used views
   int num_projector_corners = 0;  // in the used views
   // RMS of the initial OpenCV calibrations (each device on its own), pixels.
@@ -148,7 +158,8 @@ class RigCalibrator {
   // Throws sope::Error on an invalid board or options.
   RigCalibrator(const BoardSpec& board, const CalibrationOptions& options = {});
 
-  // Finds the board in the white frame (DetectBoardCorners), decodes the frame set,
+  // Finds the board in the white frame (DetectBoard: the whole board or, unless
+  // options.detection.partial is off, a part cut by the image border), decodes the frame set,
   // refines the codes to sub-pixel (RefineGrayCodeSubpixel, unless options say no) and
   // carries the corners into the projector (FindProjectorCorners). Returns the view's
   // observation, or nullopt when the board is not found — an expected failure, logged as
@@ -158,8 +169,8 @@ class RigCalibrator {
   // from the views added before.
   std::optional<BoardObservation> AddFrameSet(const FrameSet& frames, std::string name = "");
   // Adds corners measured elsewhere (another detector, synthetic tests). Throws
-  // sope::Error when the corner counts do not match the board or `sizes` differs from
-  // the views added before.
+  // sope::Error when the corner counts do not match the board (or corner_indices, which
+  // must name board corners) or `sizes` differs from the views added before.
   void AddObservation(const BoardObservation& observation, const DeviceSizes& sizes);
 
   int NumViews() const { return static_cast<int>(views_.size()); }

@@ -39,6 +39,49 @@ std::vector<Eigen::Vector3d> OutlineInBoard(const BoardSpec& board,
   return outline;
 }
 
+// Whether the board's front faces a device at `device_from_board` within max_view_angle
+// of the ray to its centre.
+bool Faces(const Rigid3d& device_from_board, const Eigen::Vector3d& center_in_board,
+           const BoardSequenceOptions& options) {
+  const Eigen::Vector3d center = device_from_board * center_in_board;
+  const Eigen::Vector3d normal = device_from_board.rotation.col(2);  // away from the front
+  return normal.dot(center.normalized()) >= std::cos(options.max_view_angle);
+}
+
+// Whether `point` (device frame) images inside the device with the border.
+bool InImage(const CameraModel& device, const Eigen::Vector3d& point, double border) {
+  if (point.z() <= 0.05) return false;
+  // Far outside the field, distortion polynomials fold back: test the direction first.
+  const double x = point.x() / point.z(), y = point.y() / point.z();
+  if (std::abs(x) > 1.5 || std::abs(y) > 1.5) return false;
+  const Eigen::Vector2d pixel = device.ImageFromCam(point);
+  return pixel.x() >= border && pixel.y() >= border && pixel.x() <= device.width - 1 - border &&
+         pixel.y() <= device.height - 1 - border;
+}
+
+// A partial view: both devices faced, the fraction of inner corners outside the camera
+// image in [min_out_of_view, max_out_of_view], and every corner inside it also inside the
+// projector's image.
+bool SeesPart(const RigCalibration& calibration, const BoardSpec& board,
+              const Rigid3d& cam_from_board, const Eigen::Vector3d& center_in_board,
+              const BoardSequenceOptions& options) {
+  const Rigid3d proj_from_board = calibration.proj_from_cam * cam_from_board;
+  if (!Faces(cam_from_board, center_in_board, options) ||
+      !Faces(proj_from_board, center_in_board, options)) {
+    return false;
+  }
+  int outside = 0;
+  for (const Eigen::Vector3d& corner : board.CornersInBoard()) {
+    if (!InImage(calibration.camera, cam_from_board * corner, options.min_border_px)) {
+      ++outside;
+    } else if (!InImage(calibration.projector, proj_from_board * corner, options.min_border_px)) {
+      return false;
+    }
+  }
+  const double fraction = static_cast<double>(outside) / board.NumCorners();
+  return fraction >= options.min_out_of_view && fraction <= options.max_out_of_view;
+}
+
 // Whether a device at `device_from_board` sees the whole outline inside its image with
 // the border, and the board's front within max_view_angle of the ray to its centre.
 bool Sees(const CameraModel& device, const Rigid3d& device_from_board,
@@ -89,8 +132,18 @@ void BoardSequenceOptions::Check() const {
              "board sequence: need 0 <= black_albedo < white_albedo <= 1, got {} and {}",
              black_albedo, white_albedo);
   SOPE_CHECK(margin_squares >= 0, "board sequence: margin_squares must be >= 0");
+  SOPE_CHECK(partial_fraction >= 0 && partial_fraction <= 1,
+             "board sequence: partial_fraction must be in [0, 1], got {}", partial_fraction);
+  SOPE_CHECK(min_out_of_view > 0 && max_out_of_view >= min_out_of_view && max_out_of_view < 1,
+             "board sequence: need 0 < min_out_of_view <= max_out_of_view < 1, got [{}, {}]",
+             min_out_of_view, max_out_of_view);
   SOPE_CHECK(max_attempts_per_view >= 1, "board sequence: max_attempts_per_view must be >= 1");
   patterns.Check();
+}
+
+bool IsPartialBoardView(const BoardSequenceOptions& options, int index) {
+  return std::floor((index + 1) * options.partial_fraction) >
+         std::floor(index * options.partial_fraction);
 }
 
 SceneObject MakeCheckerboardObject(const BoardSpec& board, const Rigid3d& cam_from_board,
@@ -135,11 +188,18 @@ std::vector<Rigid3d> SampleBoardPoses(const RigCalibration& calibration, const B
   const std::vector<Eigen::Vector3d> outline = internal::OutlineInBoard(board, options);
   std::vector<Rigid3d> poses;
   for (int view = 0; view < options.num_views; ++view) {
+    const bool partial = IsPartialBoardView(options, view);
     bool found = false;
     for (int attempt = 0; attempt < options.max_attempts_per_view && !found; ++attempt) {
       const double depth = uniform(options.min_distance, options.max_distance);
+      // A partial view's centre may lie up to half the board beyond the field.
+      const double reach_u =
+          partial ? 0.5 * (board.cols + 1) * board.square_size / depth : 0.0;
+      const double reach_v =
+          partial ? 0.5 * (board.rows + 1) * board.square_size / depth : 0.0;
       const Eigen::Vector3d center_in_cam =
-          depth * Eigen::Vector3d(uniform(min_u, max_u), uniform(min_v, max_v), 1.0);
+          depth * Eigen::Vector3d(uniform(min_u - reach_u, max_u + reach_u),
+                                  uniform(min_v - reach_v, max_v + reach_v), 1.0);
       const double tilt = uniform(options.min_tilt, options.max_tilt);
       const double direction = uniform(-M_PI, M_PI);
       const Eigen::Matrix3d rotation =
@@ -148,6 +208,14 @@ std::vector<Rigid3d> SampleBoardPoses(const RigCalibration& calibration, const B
            Eigen::AngleAxisd(tilt, Eigen::Vector3d(std::cos(direction), std::sin(direction), 0)))
               .toRotationMatrix();
       const Rigid3d cam_from_board(rotation, center_in_cam - rotation * center_in_board);
+      if (partial) {
+        if (!internal::SeesPart(calibration, board, cam_from_board, center_in_board, options)) {
+          continue;
+        }
+        poses.push_back(cam_from_board);
+        found = true;
+        continue;
+      }
       if (!internal::Sees(camera, cam_from_board, outline, center_in_board, options)) continue;
       if (!internal::Sees(calibration.projector, calibration.proj_from_cam * cam_from_board,
                           outline, center_in_board, options)) {

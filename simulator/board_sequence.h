@@ -41,6 +41,14 @@ struct BoardSequenceOptions {
   double black_albedo = 0.05;
   double white_albedo = 0.85;
   double margin_squares = 1.0;
+  // Views with the board partly outside the camera image (common on real rigs): this
+  // fraction of the views (view i is one when IsPartialBoardView(options, i)), each with a
+  // fraction of the board's inner corners in [min_out_of_view, max_out_of_view] outside
+  // the camera image; the projector still sees every corner the camera sees. 0 (the
+  // default): every board wholly in view.
+  double partial_fraction = 0.0;
+  double min_out_of_view = 0.1;
+  double max_out_of_view = 0.4;
   // Random poses tried per accepted view before giving up.
   int max_attempts_per_view = 2000;
   // The pattern sequence (projector size is taken from the rig). Defaults: white, black,
@@ -51,6 +59,11 @@ struct BoardSequenceOptions {
   void Check() const;
 };
 
+// Whether view `index` of a sequence has the board partly out of the camera image:
+// ⌊(index + 1)·partial_fraction⌋ > ⌊index·partial_fraction⌋ (evenly spread, e.g. every
+// third view for 1/3).
+bool IsPartialBoardView(const BoardSequenceOptions& options, int index);
+
 // The board as a scene object: a plane in the board frame (BoardSpec: origin at inner
 // corner 0, z away from its printed front) with the checker printed as an albedo map;
 // the square diagonally outside corner 0 is black. cam_from_model = cam_from_board.
@@ -60,7 +73,8 @@ SceneObject MakeCheckerboardObject(const BoardSpec& board, const Rigid3d& cam_fr
 // `options.num_views` random cam_from_board poses (reproducible from options.seed): depth,
 // tilts, roll and position over the shared field of camera and projector drawn uniformly,
 // each kept only when the whole board is inside both images and not too oblique to either
-// device. Throws sope::Error when no acceptable pose is found (board too large for the rig).
+// device (for the partial views of options.partial_fraction: the stated part of its
+// corners outside the camera image, the rest inside both). Throws sope::Error when no acceptable pose is found (board too large for the rig).
 std::vector<Rigid3d> SampleBoardPoses(const RigCalibration& calibration, const BoardSpec& board,
                                       const BoardSequenceOptions& options);
 

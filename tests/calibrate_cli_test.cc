@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -150,6 +151,48 @@ TEST_F(CalibrateCli, CalibrateWritesTheCalibrationItsReportAndResidualPlot) {
   const cv::Mat plot = cv::imread(local_.File("cal.residuals.png"));
   ASSERT_FALSE(plot.empty());
   EXPECT_GT(plot.cols, 800);
+}
+
+// Issue 11: boards partly out of the camera image in every second view (`simulate
+// --partial-views`) are used and reported; --whole-boards drops them as before.
+TEST_F(CalibrateCli, BoardsPartlyOutOfViewAreUsed) {
+  const std::string rig = " --rig " + scratch_->File("rig.yaml") + " --supersample 2";
+  SopeRun run = Sope(std::string("simulate --board ") + kBoard + " --views 6 --partial-views 0.5" +
+                         rig + " --out " + local_.File("seq"),
+                     local_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const std::string calibrate = "calibrate --frames " + local_.File("seq") + " --board " + kBoard +
+                                " --camera-distortion k1,k2 --projector-distortion none";
+  run = Sope(calibrate + " --out " + local_.File("cal.yaml"), local_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_NE(run.out.find("6 given: 6 used, 0 dropped, 0 without the board; 3 used with the "
+                         "board partly in view"),
+            std::string::npos)
+      << run.out;
+  const nlohmann::json report =
+      nlohmann::json::parse(ReadFileToString(local_.File("cal.report.json"), "test"));
+  EXPECT_EQ(report["views_partial_used"], 3);
+  for (int v = 0; v < 6; ++v) EXPECT_EQ(report["views"][v]["partial"], v % 2 == 1) << v;
+  // A sanity bound only: six views of 20 corners (~20 px squares), three of them partial,
+  // on the small rig; the accuracy figures are calibrate_e2e_test's.
+  const RigCalibration truth = SmallRig();
+  const RigCalibration recovered = ReadRigCalibration(local_.File("cal.yaml"));
+  EXPECT_NEAR(recovered.camera.fx() / truth.camera.fx(), 1.0, 0.03);
+  EXPECT_NEAR(recovered.projector.fx() / truth.projector.fx(), 1.0, 0.03);
+  EXPECT_NEAR(recovered.BaselineLength() / truth.BaselineLength(), 1.0, 0.03);
+  run = Sope(calibrate + " --whole-boards --out " + local_.File("whole.yaml"), local_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_NE(run.out.find("6 given: 3 used, 0 dropped, 3 without the board\n"), std::string::npos)
+      << run.out;
+  const RigCalibration whole = ReadRigCalibration(local_.File("whole.yaml"));
+  std::printf("[small rig] camera fx error %+.2f%% with the partial views, %+.2f%% without; "
+              "projector %+.2f%% / %+.2f%%; baseline %+.2f%% / %+.2f%%\n",
+              100 * (recovered.camera.fx() / truth.camera.fx() - 1),
+              100 * (whole.camera.fx() / truth.camera.fx() - 1),
+              100 * (recovered.projector.fx() / truth.projector.fx() - 1),
+              100 * (whole.projector.fx() / truth.projector.fx() - 1),
+              100 * (recovered.BaselineLength() / truth.BaselineLength() - 1),
+              100 * (whole.BaselineLength() / truth.BaselineLength() - 1));
 }
 
 TEST_F(CalibrateCli, ViewWithoutTheBoardIsSkippedWithAWarning) {

@@ -54,6 +54,11 @@ struct Calibrated {
   double add_views_seconds = 0.0;  // detection, decoding, projector corners
   double calibrate_seconds = 0.0;  // initialisation + adjustment
   SimulatedScan sphere;            // a scene without a board
+  // Views rendered with the board partly out of the camera image (IsPartialBoardView).
+  std::vector<bool> partial;
+  int num_partial = 0;
+  // The same sequence without its partial views (what dropping them gave).
+  std::optional<CalibrationSummary> whole_only;
 };
 
 double MedianDepthError(const GroundTruth& truth, const cv::Mat& depth) {
@@ -101,7 +106,10 @@ std::pair<double, double> DepthErrors(const SimulatedScan& scan, const RigCalibr
 // renders it once.
 // `board_patterns`: the views' pattern sequence (default: white, black, Gray code with
 // inverses).
-Calibrated RenderAndCalibrate(const PatternOptions& board_patterns = PatternOptions()) {
+// `partial_fraction`: BoardSequenceOptions::partial_fraction (views with the board partly
+// out of view); with some, the whole-board views alone are calibrated too (whole_only).
+Calibrated RenderAndCalibrate(const PatternOptions& board_patterns = PatternOptions(),
+                              double partial_fraction = 0.0) {
   Calibrated d;
   d.truth = DefaultRigCalibration();
   d.board = TestBoard();
@@ -109,13 +117,21 @@ Calibrated RenderAndCalibrate(const PatternOptions& board_patterns = PatternOpti
   BoardSequenceOptions options;
   options.num_views = kViews;
   options.patterns = board_patterns;
+  options.partial_fraction = partial_fraction;
   RigCalibrator calibrator(d.board);
+  RigCalibrator whole_only(d.board);
+  const DeviceSizes sizes{d.truth.camera.width, d.truth.camera.height, d.truth.projector.width,
+                          d.truth.projector.height};
   d.cam_from_board = SimulateBoardSequence(
       rig, d.board, options, [&](int index, const Rigid3d&, FrameSet&& frames) {
         const auto start = std::chrono::steady_clock::now();
-        calibrator.AddFrameSet(frames, BoardViewName(index));
+        const std::optional<BoardObservation> observation =
+            calibrator.AddFrameSet(frames, BoardViewName(index));
         d.add_views_seconds +=
             std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+        d.partial.push_back(IsPartialBoardView(options, index));
+        d.num_partial += d.partial.back();
+        if (observation && !observation->partial) whole_only.AddObservation(*observation, sizes);
       });
   d.sphere = SimulateSphereScan(rig);
   calibrator.AddFrameSet(d.sphere.frames, "sphere");  // no board: skipped
@@ -124,6 +140,12 @@ Calibrated RenderAndCalibrate(const PatternOptions& board_patterns = PatternOpti
   d.calibrate_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::printf("%s", d.summary.BriefReport().c_str());
+  if (d.num_partial > 0) {
+    d.whole_only = whole_only.Calibrate();
+    std::printf("[whole boards only] %d views, %d camera and %d projector corners\n",
+                d.whole_only->num_views_used, d.whole_only->num_camera_corners,
+                d.whole_only->num_projector_corners);
+  }
   return d;
 }
 
@@ -169,6 +191,7 @@ void ExpectTheTrueRig(const Calibrated& d) {
   ::testing::Test::RecordProperty("rotation_error_deg", std::to_string(rotation_error / kDegree));
 
   EXPECT_EQ(d.summary.num_views_used, kViews);
+  EXPECT_EQ(d.summary.num_partial_views_used, d.num_partial);
   ExpectDeviceNear(recovered.camera, d.truth.camera);
   ExpectDeviceNear(recovered.projector, d.truth.projector);
   EXPECT_LT(std::abs(baseline_error), 0.005);
@@ -176,8 +199,28 @@ void ExpectTheTrueRig(const Calibrated& d) {
   EXPECT_LE(recovered.rms_camera_px, 0.2);
   EXPECT_LE(recovered.rms_projector_px, 0.3);
   EXPECT_GT(recovered.rms_camera_px, 0.0);
-  // The projector saw nearly every corner.
-  EXPECT_GE(d.summary.num_projector_corners, 0.95 * kViews * d.board.NumCorners());
+  // The projector saw nearly every corner (in the camera's view, when some boards are
+  // partly out of it).
+  const int corners_in_view =
+      d.num_partial == 0 ? kViews * d.board.NumCorners() : d.summary.num_camera_corners;
+  EXPECT_GE(d.summary.num_projector_corners, 0.95 * corners_in_view);
+}
+
+// The calibration from the whole-board views alone (partial views dropped), for the record.
+void ReportWholeOnly(const Calibrated& d) {
+  if (!d.whole_only) return;
+  std::printf("[whole boards only] ");
+  ReportDevice("camera_whole_only", d.whole_only->calibration.camera, d.truth.camera);
+  ReportDevice("projector_whole_only", d.whole_only->calibration.projector, d.truth.projector);
+  const RigCalibration& recovered = d.whole_only->calibration;
+  std::printf(
+      "[whole boards only] baseline %+.4f%%, rotation error %.4f deg, translation error "
+      "%.3f mm; RMS camera %.3f px, projector %.3f px\n",
+      100 * (recovered.BaselineLength() / d.truth.BaselineLength() - 1),
+      RotationAngleBetween(recovered.proj_from_cam.rotation, d.truth.proj_from_cam.rotation) /
+          kDegree,
+      1e3 * (recovered.proj_from_cam.translation - d.truth.proj_from_cam.translation).norm(),
+      recovered.rms_camera_px, recovered.rms_projector_px);
 }
 
 void ExpectTheTrueBoardPoses(const Calibrated& d) {
@@ -185,6 +228,23 @@ void ExpectTheTrueBoardPoses(const Calibrated& d) {
   for (int v = 0; v < kViews; ++v) {
     const CalibrationViewReport& view = d.summary.views[v];
     ASSERT_TRUE(view.used) << view.name << ": " << view.status;
+    EXPECT_EQ(view.partial, d.partial[v]) << view.name;
+    if (view.partial) {
+      // A board frame of its own: the true one shifted by whole squares and turned by
+      // quarter turns about its normal (not mirrored, same square size).
+      const Rigid3d true_from_found = d.cam_from_board[v].Inverse() * view.cam_from_board;
+      const Eigen::Vector3d x_axis = true_from_found.rotation.col(0);
+      const double turn = std::round(std::atan2(x_axis.y(), x_axis.x()) / (M_PI / 2)) * M_PI / 2;
+      worst_angle = std::max(
+          worst_angle,
+          RotationAngleBetween(true_from_found.rotation,
+                               Eigen::AngleAxisd(turn, Eigen::Vector3d::UnitZ()).toRotationMatrix()));
+      const Eigen::Vector3d& t = true_from_found.translation;
+      const double s = d.board.square_size;
+      const Eigen::Vector3d on_grid(s * std::round(t.x() / s), s * std::round(t.y() / s), 0.0);
+      worst_offset = std::max(worst_offset, (t - on_grid).norm());
+      continue;
+    }
     worst_angle = std::max(worst_angle, RotationAngleBetween(view.cam_from_board.rotation,
                                                              d.cam_from_board[v].rotation));
     worst_offset = std::max(
@@ -294,6 +354,57 @@ TEST(CalibrateEndToEnd, PhaseOnlySequencesGiveTheSameAccuracy) {
     SCOPED_TRACE("phase: sphere before a backdrop");
     ExpectScanAsAccurate("sphere", d.sphere, d);
   }
+}
+
+// Issue 11: boards partly out of the camera image (every third view, 10–40% of the
+// corners outside) are used, not dropped, and the calibration meets the same figures as
+// with whole boards — for Gray-code sequences and for phase-only ones.
+TEST(CalibrateEndToEnd, PartlyVisibleBoardsAreUsedWithTheSameAccuracy) {
+  const Calibrated d = RenderAndCalibrate(PatternOptions(), 1.0 / 3.0);
+  ASSERT_EQ(d.num_partial, kViews / 3);
+  {
+    SCOPED_TRACE("partial: calibration against the true rig");
+    ExpectTheTrueRig(d);
+  }
+  {
+    SCOPED_TRACE("partial: board poses");
+    ExpectTheTrueBoardPoses(d);
+  }
+  {
+    SCOPED_TRACE("partial: sphere before a backdrop");
+    ExpectScanAsAccurate("sphere", d.sphere, d);
+  }
+  ReportWholeOnly(d);
+  // The partial views add corners: fewer than whole ones each, but some.
+  ASSERT_TRUE(d.whole_only.has_value());
+  EXPECT_EQ(d.whole_only->num_views_used, kViews - d.num_partial);
+  EXPECT_GT(d.summary.num_camera_corners, d.whole_only->num_camera_corners);
+  EXPECT_LT(d.summary.num_camera_corners, kViews * d.board.NumCorners());
+}
+
+TEST(CalibrateEndToEnd, PhaseOnlyWithPartlyVisibleBoards) {
+  PatternOptions phase;
+  phase.family = PatternFamily::kPhase;
+  phase.white_black = false;
+  phase.steps = 4;
+  const Calibrated d = RenderAndCalibrate(phase, 1.0 / 3.0);
+  ASSERT_EQ(d.num_partial, kViews / 3);
+  {
+    SCOPED_TRACE("phase, partial: calibration against the true rig");
+    ExpectTheTrueRig(d);
+  }
+  {
+    SCOPED_TRACE("phase, partial: board poses");
+    ExpectTheTrueBoardPoses(d);
+  }
+  {
+    SCOPED_TRACE("phase, partial: sphere before a backdrop");
+    ExpectScanAsAccurate("sphere", d.sphere, d);
+  }
+  ReportWholeOnly(d);
+  ASSERT_TRUE(d.whole_only.has_value());
+  EXPECT_EQ(d.whole_only->num_views_used, kViews - d.num_partial);
+  EXPECT_GT(d.summary.num_camera_corners, d.whole_only->num_camera_corners);
 }
 
 // ---- bad input ------------------------------------------------------------------------
