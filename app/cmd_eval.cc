@@ -1,5 +1,9 @@
 // sope eval --db DB.sopedb [--models HELD_OUT_DIR] [--method sope|thesis] --out DIR
+#include <cmath>
 #include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
 
 #include <spdlog/spdlog.h>
 
@@ -13,6 +17,57 @@
 #include "pipeline/table_eval.h"
 
 namespace sope {
+
+namespace {
+
+// `sope eval --table`: the tabletop protocol (pipeline/table_eval.h).
+int RunTableEval(const std::string& db_path,
+                 const std::vector<cli::BoundFlag<RecognitionOptions>>& recognition_flags,
+                 const RecognitionOptions& given, const EvalOptions& options, bool procedural,
+                 const std::vector<std::string>& table_meshes, TableEvalOptions table_options,
+                 const std::string& out) {
+  const std::unique_ptr<Database> db = Database::Open(db_path);
+  cli::ApplyGivenFlags(recognition_flags, given, &table_options.controller.recognition);
+  table_options.seed = options.seed;
+  table_options.adds_fraction = options.adds_fraction;
+  if (!procedural) {
+    table_options.meshes = table_meshes;
+    if (table_options.meshes.empty()) {
+      for (const ModelRecord& model : db->models()) {
+        SOPE_CHECK(std::abs(model.scale - 1.0) < 1e-9,
+                   "--table: model {} was scaled by {} in the database; table scenes need "
+                   "meshes in metres (or use --procedural)",
+                   model.name, model.scale);
+        table_options.meshes.push_back(model.source_path);
+      }
+    }
+  }
+  TableEvalSummary summary;
+  {
+    cli::Progress progress("scanning table scenes", table_options.scenes);
+    summary = RunTableEvaluation(*db, table_options, out,
+                                 [&](int done, int) { progress.Update(done); });
+  }
+  std::printf("%s", summary.Markdown().c_str());
+  spdlog::info("report: {}/report.md, report.json, rotation_errors.png, center_errors.png", out);
+  return 0;
+}
+
+// --bop-csv: the estimates as a BOP challenge results CSV.
+void WriteBopEstimates(const EvalReport& report, const std::string& bop_csv) {
+  std::vector<BopEstimate> estimates;
+  for (size_t q = 0; q < report.outcomes.size(); ++q) {
+    const QueryOutcome& outcome = report.outcomes[q];
+    if (outcome.predicted_model_index < 0) continue;
+    estimates.push_back({1, static_cast<int>(q), outcome.predicted_model_index + 1,
+                         outcome.score, outcome.estimated_cam_from_model,
+                         outcome.timing.total / 1000.0});
+  }
+  WriteBopCsv(bop_csv, estimates);
+  spdlog::info("BOP results: {} estimates -> {}", estimates.size(), bop_csv);
+}
+
+}  // namespace
 
 int RunEval(int argc, char** argv) {
   CLI::App app{"Evaluate the recogniser on synthetic queries with ground truth, rendered off "
@@ -95,31 +150,8 @@ int RunEval(int argc, char** argv) {
   logging.Apply();
 
   if (table) {
-    const std::unique_ptr<Database> db = Database::Open(db_path);
-    cli::ApplyGivenFlags(recognition_flags, given, &table_options.controller.recognition);
-    table_options.seed = options.seed;
-    table_options.adds_fraction = options.adds_fraction;
-    if (!procedural) {
-      table_options.meshes = table_meshes;
-      if (table_options.meshes.empty()) {
-        for (const ModelRecord& model : db->models()) {
-          SOPE_CHECK(std::abs(model.scale - 1.0) < 1e-9,
-                     "--table: model {} was scaled by {} in the database; table scenes need "
-                     "meshes in metres (or use --procedural)",
-                     model.name, model.scale);
-          table_options.meshes.push_back(model.source_path);
-        }
-      }
-    }
-    TableEvalSummary summary;
-    {
-      cli::Progress progress("scanning table scenes", table_options.scenes);
-      summary = RunTableEvaluation(*db, table_options, out,
-                                   [&](int done, int) { progress.Update(done); });
-    }
-    std::printf("%s", summary.Markdown().c_str());
-    spdlog::info("report: {}/report.md, report.json, rotation_errors.png, center_errors.png", out);
-    return 0;
+    return RunTableEval(db_path, recognition_flags, given, options, procedural, table_meshes,
+                        table_options, out);
   }
   options.protocol = protocol_text.empty()
                          ? (models_dir.empty() ? EvalProtocol::kInstance : EvalProtocol::kClass)
@@ -151,18 +183,7 @@ int RunEval(int argc, char** argv) {
   }
   report.skipped_models = skipped;
   WriteEvalReport(report, out);
-  if (!bop_csv.empty()) {
-    std::vector<BopEstimate> estimates;
-    for (size_t q = 0; q < report.outcomes.size(); ++q) {
-      const QueryOutcome& outcome = report.outcomes[q];
-      if (outcome.predicted_model_index < 0) continue;
-      estimates.push_back({1, static_cast<int>(q), outcome.predicted_model_index + 1,
-                           outcome.score, outcome.estimated_cam_from_model,
-                           outcome.timing.total / 1000.0});
-    }
-    WriteBopCsv(bop_csv, estimates);
-    spdlog::info("BOP results: {} estimates -> {}", estimates.size(), bop_csv);
-  }
+  if (!bop_csv.empty()) WriteBopEstimates(report, bop_csv);
   std::printf("%s\n", report.BriefReport().c_str());
   spdlog::info("report: {}/report.md, report.json, confusion.png, pose_errors.png", out);
   return 0;

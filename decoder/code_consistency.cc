@@ -81,8 +81,8 @@ Choice ChooseBlock(const AxisFrames& axis, const std::vector<float>& margins, fl
       blocks - 1, static_cast<int>(std::ceil((predicted + radius - centre_offset) / step)));
   const float strong =
       static_cast<float>(options.consistency.strong_bit_factor * options.min_bit_contrast);
-  float best = -std::numeric_limits<float>::infinity(), second = best;
-  int best_block = -1;
+  float best = -std::numeric_limits<float>::infinity(), second = best, third = best;
+  int best_block = -1, second_block = -1;
   for (int block = first; block <= last; ++block) {
     const float centre = block * step + centre_offset;
     if (std::abs(centre - predicted) > radius + 0.5f * step) continue;
@@ -97,20 +97,37 @@ Choice ChooseBlock(const AxisFrames& axis, const std::vector<float>& margins, fl
     }
     if (contradicted) continue;
     if (score > best) {
+      third = second;
       second = best;
+      second_block = best_block;
       best = score;
       best_block = block;
     } else if (score > second) {
+      third = second;
       second = score;
+      second_block = block;
+    } else if (score > third) {
+      third = score;
     }
   }
   Choice choice;
   if (best_block < 0) return choice;
+  const float min_lead = static_cast<float>(options.consistency.min_lead);
   const float lead = std::isfinite(second) ? best - second : best;
-  if (!(lead >= static_cast<float>(options.consistency.min_lead))) return choice;
-  const int end = std::min((best_block + 1) * step, axis.size);
-  choice.coordinate = 0.5f * static_cast<float>(best_block * step + end - 1);
-  choice.confidence = std::min(0.5f, lead / (4.0f * std::max(contrast, 1.0f)));
+  if (lead >= min_lead) {
+    const int end = std::min((best_block + 1) * step, axis.size);
+    choice.coordinate = 0.5f * static_cast<float>(best_block * step + end - 1);
+    choice.confidence = std::min(0.5f, lead / (4.0f * std::max(contrast, 1.0f)));
+    return choice;
+  }
+  // Two neighbouring blocks tie: their codes differ in the one bit that flips at their
+  // shared edge and that bit's margin is small, so the pixel sees that edge — it takes the
+  // edge's coordinate, provided the two beat every other candidate by the lead.
+  const float lead_over_rest = std::isfinite(third) ? second - third : second;
+  if (std::abs(best_block - second_block) == 1 && lead_over_rest >= min_lead) {
+    choice.coordinate = static_cast<float>(std::max(best_block, second_block) * step) - 0.5f;
+    choice.confidence = std::min(0.5f, lead_over_rest / (8.0f * std::max(contrast, 1.0f)));
+  }
   return choice;
 }
 

@@ -18,7 +18,11 @@ namespace sope {
 //   • the pixel's contrast is ≥ options.min_contrast grey levels,
 //   • no bit decided by more than options.strong_bit_factor × min_bit_contrast disagrees
 //     with it (the prediction is then wrong: an occlusion edge, another surface), and
-//   • it beats the runner-up by ≥ 2 × min_bit_contrast (its bits do decide).
+//   • it beats the runner-up by ≥ options.consistency.min_lead (its bits do decide) — or,
+//     when the two best are neighbouring blocks (their Gray words differ in the one bit
+//     that flips at their shared edge, whose margin is then small: the pixel sees that
+//     edge), both beat every other candidate by it, and the pixel takes the edge's
+//     coordinate (k + ½ between blocks k and k + 1; confidence halved).
 // A per-pixel decision relative to the pixel's own margins, so it works at any contrast;
 // the neighbours only bound the search, so a pixel cannot take a code its bits contradict.
 // Filled pixels get the block centre (then RefineGraySubpixel, when on) and confidence

@@ -79,8 +79,10 @@ struct DecoderOptions {
     // Half side of the neighbour window, camera pixels, and the decoded neighbours needed.
     int window_radius = 3;
     int min_neighbours = 12;
-    // Candidates: blocks whose centre is within this of the neighbours' median, projector px.
-    double search_radius_px = 1.0;
+    // Candidates: blocks whose centre is within this (+ half a block) of the neighbours'
+    // prediction, projector px. 0.5: the prediction's block and its two neighbours at most
+    // (1.0 let a second neighbour in and doubled the wrong fills on the grazing sphere).
+    double search_radius_px = 0.5;
     // A bit whose margin exceeds this × min_bit_contrast must agree with the chosen code.
     double strong_bit_factor = 3.0;
     // The neighbours' coordinates must fit a plane (in camera x, y) to this RMS, projector px.

@@ -44,6 +44,9 @@ constexpr int kAxisX = static_cast<int>(PatternAxis::kX);
 constexpr int kAxisY = static_cast<int>(PatternAxis::kY);
 constexpr int kMaxGrayBits = 16;
 constexpr int kMaxGroupsPerAxis = 8;
+// The local fit's tolerance: at least this many standard deviations of the pixel's
+// coordinate noise (from its confidence).
+constexpr double kLocalFitSigmas = 4.0;
 
 inline float FastWrappedAtan2(float y, float x) {
   // atan on [0, 1]: Abramowitz & Stegun 4.4.49-style odd minimax polynomial.
@@ -606,6 +609,152 @@ void PrepareOutput(cv::Size size, int type, cv::Mat* image) {
 
 float WrappedAtan2(float y, float x) { return FastWrappedAtan2(y, x); }
 
+void FitCoordinatesLocally(const PhaseDecoderOptions& options, const cv::Mat& mask,
+                           const cv::Mat& confidence, double noise_scale, cv::Mat* coordinate,
+                           int num_threads) {
+  const int rows = mask.rows, cols = mask.cols, r = options.local_fit_radius;
+  const float min_tolerance = static_cast<float>(options.local_fit_tolerance_px);
+  const float sigmas = static_cast<float>(kLocalFitSigmas * noise_scale);
+  const int min_samples = 2 * r + 3;
+  const cv::Mat raw = coordinate->clone();
+  const int window = (2 * r + 1) * (2 * r + 1);
+  const auto fit_rows = [&](const cv::Range& range) {
+    std::vector<float> dxs(window), dys(window), us(window);
+    for (int y = range.start; y < range.end; ++y) {
+      const uint8_t* valid = mask.ptr<uint8_t>(y);
+      const float* centre_row = raw.ptr<float>(y);
+      float* out = coordinate->ptr<float>(y);
+      for (int x = 0; x < cols; ++x) {
+        if (valid[x] == 0) continue;
+        const float centre = centre_row[x];
+        const float tolerance =
+            confidence.empty() ? min_tolerance
+                               : std::max(min_tolerance, sigmas / confidence.at<float>(y, x));
+        // The slopes at the pixel: of the one-sided differences the smaller (minmod; 0 when
+        // they disagree in sign), so that a step beside the pixel does not tilt the
+        // prediction that decides which neighbours lie on its surface.
+        const auto one_sided = [&](int dx, int dy) {
+          const int nx = x + dx, ny = y + dy;
+          if (nx < 0 || nx >= cols || ny < 0 || ny >= rows || mask.at<uint8_t>(ny, nx) == 0) {
+            return std::numeric_limits<float>::quiet_NaN();
+          }
+          return (raw.at<float>(ny, nx) - centre) * static_cast<float>(dx + dy);
+        };
+        const auto minmod = [](float a, float b) {
+          if (std::isnan(a)) return std::isnan(b) ? 0.0f : b;
+          if (std::isnan(b)) return a;
+          if ((a > 0.0f) != (b > 0.0f)) return 0.0f;
+          return std::abs(a) < std::abs(b) ? a : b;
+        };
+        const float slope_x = minmod(one_sided(1, 0), one_sided(-1, 0));
+        const float slope_y = minmod(one_sided(0, 1), one_sided(0, -1));
+        // The common case first: a 3×3 window all on the surface, where the plane's centre
+        // value is the window's mean and its slopes Σdx·u/6, Σdy·u/6.
+        if (r == 1 && x > 0 && x + 1 < cols && y > 0 && y + 1 < rows) {
+          const uint8_t* m0 = mask.ptr<uint8_t>(y - 1);
+          const uint8_t* m2 = mask.ptr<uint8_t>(y + 1);
+          if ((m0[x - 1] & m0[x] & m0[x + 1] & valid[x - 1] & valid[x + 1] & m2[x - 1] & m2[x] &
+               m2[x + 1]) != 0) {
+            const float* u0 = raw.ptr<float>(y - 1);
+            const float* u2 = raw.ptr<float>(y + 1);
+            const float d[9] = {u0[x - 1] - centre, u0[x] - centre, u0[x + 1] - centre,
+                                centre_row[x - 1] - centre, 0.0f, centre_row[x + 1] - centre,
+                                u2[x - 1] - centre, u2[x] - centre, u2[x + 1] - centre};
+            bool all_in = true;
+            float sum = 0.0f, sum_x = 0.0f, sum_y = 0.0f;
+            for (int k = 0; k < 9; ++k) {
+              const float dx = static_cast<float>(k % 3 - 1), dy = static_cast<float>(k / 3 - 1);
+              all_in &= std::abs(d[k] - slope_x * dx - slope_y * dy) <= tolerance;
+              sum += d[k];
+              sum_x += dx * d[k];
+              sum_y += dy * d[k];
+            }
+            if (all_in) {
+              const float a = sum / 9.0f, b = sum_x / 6.0f, c = sum_y / 6.0f;
+              for (int k = 0; k < 9; ++k) {
+                const float dx = static_cast<float>(k % 3 - 1), dy = static_cast<float>(k / 3 - 1);
+                all_in &= std::abs(d[k] - a - b * dx - c * dy) <= tolerance;
+              }
+              if (all_in) {
+                out[x] = centre + a;
+                continue;
+              }
+            }
+          }
+        }
+        int n = 0;
+        for (int dy = -r; dy <= r; ++dy) {
+          const int ny = y + dy;
+          if (ny < 0 || ny >= rows) continue;
+          const uint8_t* nvalid = mask.ptr<uint8_t>(ny);
+          const float* nu = raw.ptr<float>(ny);
+          for (int dx = -r; dx <= r; ++dx) {
+            const int nx = x + dx;
+            if (nx < 0 || nx >= cols || nvalid[nx] == 0) continue;
+            const float predicted = centre + slope_x * static_cast<float>(dx) +
+                                    slope_y * static_cast<float>(dy);
+            if (!(std::abs(nu[nx] - predicted) <= tolerance)) continue;
+            dxs[n] = static_cast<float>(dx);
+            dys[n] = static_cast<float>(dy);
+            us[n] = nu[nx] - centre;
+            ++n;
+          }
+        }
+        // Two passes: fit, drop the samples off the plane, refit.
+        float value = 0.0f;
+        bool fitted = false;
+        for (int pass = 0; pass < 2 && n >= min_samples; ++pass) {
+          double s1 = 0, sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0, su = 0, sxu = 0, syu = 0;
+          for (int k = 0; k < n; ++k) {
+            const double dx = dxs[k], dy = dys[k], u = us[k];
+            s1 += 1;
+            sx += dx;
+            sy += dy;
+            sxx += dx * dx;
+            sxy += dx * dy;
+            syy += dy * dy;
+            su += u;
+            sxu += dx * u;
+            syu += dy * u;
+          }
+          Eigen::Matrix3d normal;
+          normal << s1, sx, sy, sx, sxx, sxy, sy, sxy, syy;
+          const Eigen::Vector3d rhs(su, sxu, syu);
+          const Eigen::LDLT<Eigen::Matrix3d> ldlt(normal);
+          if (ldlt.info() != Eigen::Success || !(std::abs(ldlt.vectorD().minCoeff()) > 1e-6)) {
+            fitted = false;
+            break;
+          }
+          const Eigen::Vector3d plane = ldlt.solve(rhs);
+          value = static_cast<float>(plane(0));
+          fitted = true;
+          if (pass == 1) break;
+          int kept = 0;
+          for (int k = 0; k < n; ++k) {
+            const float residual = us[k] - static_cast<float>(plane(0) + plane(1) * dxs[k] +
+                                                               plane(2) * dys[k]);
+            if (std::abs(residual) > tolerance) continue;
+            dxs[kept] = dxs[k];
+            dys[kept] = dys[k];
+            us[kept] = us[k];
+            ++kept;
+          }
+          if (kept == n) break;
+          n = kept;
+          fitted = false;
+        }
+        if (fitted) out[x] = centre + value;
+      }
+    }
+  };
+  if (num_threads > 1) {
+    cv::parallel_for_(cv::Range(0, rows), fit_rows, num_threads);
+  } else {
+    fit_rows(cv::Range(0, rows));
+  }
+}
+
+
 PhaseFit::PhaseFit(const std::vector<double>& shifts) {
   SOPE_CHECK(shifts.size() >= 3, "phase group with {} shifts (needs ≥ 3)", shifts.size());
   Eigen::Matrix3d normal = Eigen::Matrix3d::Zero();
@@ -678,6 +827,10 @@ void PhaseDecoderOptions::Check() const {
              "phase max_unwrap_error {} must be in (0, 0.5) periods", max_unwrap_error);
   SOPE_CHECK(std::isfinite(noise_floor) && noise_floor > 0.0 && noise_floor <= 255.0,
              "phase noise_floor {} must be in (0, 255] grey levels", noise_floor);
+  SOPE_CHECK(local_fit_radius >= 0 && local_fit_radius <= 3,
+             "phase local_fit_radius {} must be in [0, 3] pixels", local_fit_radius);
+  SOPE_CHECK(std::isfinite(local_fit_tolerance_px) && local_fit_tolerance_px > 0.0,
+             "phase local_fit_tolerance_px {} must be > 0", local_fit_tolerance_px);
   response.Check();
 }
 
@@ -751,6 +904,19 @@ void DecodePhase(const FrameSet& frame_set, const DecoderOptions& options, Corre
   if (options.min_consistent_neighbours > 0) {
     internal::RemoveSpeckles(options.min_consistent_neighbours,
                              static_cast<float>(options.neighbour_tolerance_px), map);
+  }
+  if (options.phase.local_fit_radius > 0) {
+    for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+      const internal::AxisPlan& axis_plan = plan.axes[static_cast<int>(axis)];
+      if (axis_plan.groups.empty()) continue;
+      cv::Mat& coordinate = axis == PatternAxis::kX ? map->proj_x : map->proj_y;
+      // σ_u = P/(2π·B/σ·√(N/2)) for the finest group's N samples; confidence = B/σ.
+      const internal::GroupPlan& finest = axis_plan.groups.back();
+      const double noise_scale =
+          finest.period / (internal::kTwoPiD * std::sqrt(0.5 * finest.frames.size()));
+      internal::FitCoordinatesLocally(options.phase, map->mask, map->confidence, noise_scale,
+                                      &coordinate, options.num_threads);
+    }
   }
 }
 

@@ -84,6 +84,14 @@ struct PhaseFit {
 std::vector<float> MakePhaseCorrectionTable(const PhaseFit& fit, const ProjectorResponse& response,
                                             int bins);
 
+// PhaseDecoderOptions::local_fit_radius applied to one axis's coordinates (CV_32FC1) at
+// the pixels where `mask` (CV_8UC1) is non-zero. The tolerance is at least 4 standard
+// deviations of the pixel's coordinate noise, noise_scale / confidence (CV_32FC1; empty:
+// the option's tolerance alone). Rows in parallel when num_threads > 1.
+void FitCoordinatesLocally(const PhaseDecoderOptions& options, const cv::Mat& mask,
+                           const cv::Mat& confidence, double noise_scale, cv::Mat* coordinate,
+                           int num_threads = 1);
+
 // atan2(y, x) in [0, 2π), |error| < 2e-6 rad, branch-free (vectorises); 0 for (0, 0).
 float WrappedAtan2(float y, float x);
 

@@ -332,6 +332,7 @@ TEST(PhaseDecoder, ResponseCorrectionRemovesTheGammaRipple) {
   const FrameSet set = Render(patterns, capture);
   DecoderOptions options;
   options.min_consistent_neighbours = 0;
+  options.phase.local_fit_radius = 0;  // the per-pixel correction alone (the fit smooths)
   const CorrespondenceMap plain = Decode(set, options);
   options.phase.response = ProjectorResponse::Gamma(2.2);
   const CorrespondenceMap corrected = Decode(set, options);
@@ -399,6 +400,52 @@ TEST(PhaseDecoder, InvalidOptionsNameTheValue) {
   options = {};
   options.phase.response.table = {0.0, 0.7, 0.6, 1.0};
   EXPECT_THROW_WITH_MESSAGE(Decode(set, options), Error, "must not decrease");
+  options = {};
+  options.phase.local_fit_radius = 5;
+  EXPECT_THROW_WITH_MESSAGE(Decode(set, options), Error, "local_fit_radius 5");
+}
+
+// The local fit of the coordinate: noise averaged on a smooth surface, nothing mixed across
+// a depth step (a jump of the coordinate), a period-jump outlier neither pulled in nor
+// pulling its neighbours.
+TEST(PhaseDecoder, LocalFitAveragesNoiseButKeepsStepsAndOutliers) {
+  const int rows = 60, cols = 80;
+  cv::Mat truth(rows, cols, CV_32FC1), coordinate(rows, cols, CV_32FC1);
+  cv::Mat mask(rows, cols, CV_8UC1, cv::Scalar(255));
+  std::mt19937_64 engine(3);
+  std::normal_distribution<float> noise(0.0f, 0.08f);
+  for (int y = 0; y < rows; ++y) {
+    for (int x = 0; x < cols; ++x) {
+      // A tilted plane, a step of 2 px at x = 40 (a small depth step), a hole.
+      truth.at<float>(y, x) = 5.0f + 1.2f * x + 0.3f * y + (x >= 40 ? 2.0f : 0.0f);
+      coordinate.at<float>(y, x) = truth.at<float>(y, x) + noise(engine);
+    }
+  }
+  mask(cv::Rect(10, 10, 5, 5)).setTo(0);
+  coordinate.at<float>(30, 20) += 8.0f;  // a period jump of the 8-px group
+  PhaseDecoderOptions options;
+  cv::Mat fitted = coordinate.clone();
+  internal::FitCoordinatesLocally(options, mask, cv::Mat(), 1.0, &fitted);
+  std::vector<double> before, after;
+  double worst_at_step = 0;
+  for (int y = 1; y < rows - 1; ++y) {
+    for (int x = 1; x < cols - 1; ++x) {
+      if (mask.at<uint8_t>(y, x) == 0 || (y == 30 && x == 20)) continue;
+      const double error = std::abs(fitted.at<float>(y, x) - truth.at<float>(y, x));
+      if (x == 39 || x == 40) worst_at_step = std::max(worst_at_step, error);
+      if (std::abs(y - 30) <= 1 && std::abs(x - 20) <= 1) {
+        EXPECT_LT(error, 0.3) << x << "," << y;
+      }
+      before.push_back(std::abs(coordinate.at<float>(y, x) - truth.at<float>(y, x)));
+      after.push_back(error);
+    }
+  }
+  std::printf("[local fit] median |error| %.4f px before, %.4f after; worst beside the step "
+              "%.3f px\n", Median(before), Median(after), worst_at_step);
+  EXPECT_LT(Median(after), 0.45 * Median(before));
+  EXPECT_LT(worst_at_step, 0.4);  // 5σ of the raw noise; mixing the step would give ~0.7
+  EXPECT_NEAR(fitted.at<float>(30, 20), truth.at<float>(30, 20) + 8.0f, 0.3);
+  EXPECT_EQ(fitted.at<float>(12, 12), coordinate.at<float>(12, 12));  // masked: untouched
 }
 
 }  // namespace

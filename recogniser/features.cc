@@ -230,8 +230,8 @@ double FootPointStep(const double* control, int m, int n, const double p[3], dou
   return r_sq;
 }
 
-BezierPatch FitBezierPatchImpl(const std::vector<Eigen::Vector3f>& points, int order_u, int order_v,
-                               int iterations, const Eigen::Vector3f* viewpoint, double smoothing) {
+void CheckBezierFitInputs(const std::vector<Eigen::Vector3f>& points, int order_u, int order_v,
+                          int iterations, double smoothing) {
   SOPE_CHECK(
       order_u >= 1 && order_u <= kMaxBezierOrder && order_v >= 1 && order_v <= kMaxBezierOrder,
       "FitBezierPatch: orders must be in [1, {}], got ({}, {})", kMaxBezierOrder, order_u, order_v);
@@ -242,23 +242,47 @@ BezierPatch FitBezierPatchImpl(const std::vector<Eigen::Vector3f>& points, int o
   for (const Eigen::Vector3f& p : points) {
     SOPE_CHECK(IsFinite(p), "FitBezierPatch: non-finite point ({}, {}, {})", p.x(), p.y(), p.z());
   }
+}
+
+// The patch's base plane: origin and the two largest principal axes e1, e2 (normal e3).
+struct PatchFrame {
+  Eigen::Vector3d origin;
+  Eigen::Vector3d e1, e2, e3;
+};
+
+// Signs made deterministic: the normal axis faces the viewpoint (else: positive third
+// moment along it), the first axis has a positive third moment (skewness), the second
+// completes a right-handed frame.
+PatchFrame PrincipalPatchFrame(const std::vector<Eigen::Vector3f>& points,
+                               const Eigen::Vector3f* viewpoint) {
+  PatchFrame frame;
+  Eigen::Matrix3d axes;
+  Eigen::Vector3d variances;
+  PrincipalAxes(points, &frame.origin, &axes, &variances);
+  const Eigen::Vector3d& origin = frame.origin;
+  frame.e1 = axes.col(0);
+  frame.e3 = axes.col(2);
+  const bool flip_normal = viewpoint != nullptr
+                               ? (viewpoint->cast<double>() - origin).dot(frame.e3) < 0.0
+                               : ThirdMoment(points, origin, frame.e3) < 0.0;
+  if (flip_normal) frame.e3 = -frame.e3;
+  if (ThirdMoment(points, origin, frame.e1) < 0.0) frame.e1 = -frame.e1;
+  frame.e2 = frame.e3.cross(frame.e1);
+  return frame;
+}
+
+BezierPatch FitBezierPatchImpl(const std::vector<Eigen::Vector3f>& points, int order_u, int order_v,
+                               int iterations, const Eigen::Vector3f* viewpoint, double smoothing) {
+  CheckBezierFitInputs(points, order_u, order_v, iterations, smoothing);
   const int m = order_u, n = order_v;
   const int num_control = (m + 1) * (n + 1);
   const size_t count = points.size();
 
-  // 1. The plane of the two largest principal axes; signs made deterministic: the normal
-  // axis faces the viewpoint (else: positive third moment along it), the first axis has a
-  // positive third moment (skewness), the second completes a right-handed frame.
-  Eigen::Vector3d origin;
-  Eigen::Matrix3d axes;
-  Eigen::Vector3d variances;
-  PrincipalAxes(points, &origin, &axes, &variances);
-  Eigen::Vector3d e1 = axes.col(0), e3 = axes.col(2);
-  const bool flip_normal = viewpoint != nullptr ? (viewpoint->cast<double>() - origin).dot(e3) < 0.0
-                                                : ThirdMoment(points, origin, e3) < 0.0;
-  if (flip_normal) e3 = -e3;
-  if (ThirdMoment(points, origin, e1) < 0.0) e1 = -e1;
-  const Eigen::Vector3d e2 = e3.cross(e1);
+  // 1. The plane of the two largest principal axes.
+  const PatchFrame frame = PrincipalPatchFrame(points, viewpoint);
+  const Eigen::Vector3d& origin = frame.origin;
+  const Eigen::Vector3d& e1 = frame.e1;
+  const Eigen::Vector3d& e2 = frame.e2;
 
   Eigen::MatrixX3d target(count, 3);
   Eigen::VectorXd a(count), b(count);

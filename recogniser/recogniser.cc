@@ -199,7 +199,16 @@ const std::vector<OptionField<AssemblyOptions>>& AssemblyOptions::Fields() {
             "Name the second class (ambiguous_with) when its probability is within this of "
             "the first's")
           .In(0.0, 1.0)
-          .Flag("--ambiguity-margin")};
+          .Flag("--ambiguity-margin"),
+      Field(&O::class_screen_classes, "class_screen_classes",
+            "Class screening: the first this many classes of the fine ranking each get a "
+            "refined hypothesis (0: off)")
+          .AtLeast(0)
+          .Flag("--class-screen-classes"),
+      Field(&O::class_screen_models, "class_screen_models",
+            "Class screening: refined models each of those classes gets at least")
+          .AtLeast(1)
+          .Flag("--class-screen-models")};
   return fields;
 }
 void AssemblyOptions::Check() const { CheckFields(*this, Fields(), "recognition: assembly."); }

@@ -487,6 +487,87 @@ TEST_F(ClassRankingTest, VoteOfTheFineRankingIsClassBalanced) {
   EXPECT_NEAR(probability_sum, 1.0, 1e-12);
 }
 
+// Class screening: each of the first class_screen_classes classes of the fine ranking ends
+// with at least class_screen_models refined models (its next models by their best view),
+// the hypotheses of the plain pose search are kept as they were, and 0 turns it off.
+TEST_F(ClassRankingTest, ClassScreeningRefinesTheFirstClassesOfTheRanking) {
+  const std::vector<Query> queries = MakeQueries(3, 91);
+  int added = 0;
+  for (const Query& q : queries) {
+    const ViewDescription query = DescribeQuery(*db_, q.query.cloud);
+    RecognitionOptions options;
+    options.assembly.class_screen_classes = 3;
+    options.assembly.class_screen_models = 2;
+    options.widening.below_score = 0.0;  // the plain search, then the class screening
+    options.refinement.candidates = 1;   // which leaves classes to screen
+    const CoarseResult coarse = CoarseStage(*db_, query, options);
+    StageContext context(*db_, query, coarse);
+    const FineResult fine = FineStage(&context, options);
+    RecognitionOptions off = options;
+    off.assembly.class_screen_classes = 0;
+    const std::vector<PoseCandidate> plain = EstimatePoses(&context, fine, off);
+    const std::vector<PoseCandidate> posed = EstimatePoses(&context, fine, options);
+    ASSERT_GE(posed.size(), plain.size());
+    added += static_cast<int>(posed.size() - plain.size());
+    for (size_t i = 0; i < plain.size(); ++i) {
+      EXPECT_EQ(posed[i].model, plain[i].model);
+      EXPECT_EQ(posed[i].refined, plain[i].refined);
+      EXPECT_EQ(posed[i].alignment.score, plain[i].alignment.score);
+    }
+    EXPECT_TRUE(ScreenClasses(&context, fine, plain, 4, off).empty());
+    // The first three classes of the fine ranking and their models (by best view).
+    std::vector<int> classes;
+    std::vector<std::vector<int>> models_of(db_->classes().size());
+    for (const RankedView& r : fine.ranked) {
+      const int m = db_->view(r.view).model, c = db_->model(m).class_index;
+      if (std::find(classes.begin(), classes.end(), c) == classes.end()) classes.push_back(c);
+      std::vector<int>& models = models_of[c];
+      if (std::find(models.begin(), models.end(), m) == models.end()) models.push_back(m);
+    }
+    for (size_t k = 0; k < classes.size() && k < 3; ++k) {
+      std::vector<int> refined;
+      for (const PoseCandidate& c : posed) {
+        if (c.refined && db_->model(c.model).class_index == classes[k] &&
+            std::find(refined.begin(), refined.end(), c.model) == refined.end()) {
+          refined.push_back(c.model);
+        }
+      }
+      const size_t want = std::min<size_t>(2, models_of[classes[k]].size());
+      EXPECT_GE(refined.size(), want) << "class " << db_->classes()[classes[k]];
+    }
+    // Only the screened classes' models were added, each refined at most once.
+    std::vector<int> added_refined;
+    for (size_t i = plain.size(); i < posed.size(); ++i) {
+      const int c = db_->model(posed[i].model).class_index;
+      EXPECT_NE(std::find(classes.begin(), classes.begin() + std::min<size_t>(3, classes.size()), c),
+                classes.begin() + std::min<size_t>(3, classes.size()));
+      if (!posed[i].refined) continue;
+      EXPECT_EQ(std::find(added_refined.begin(), added_refined.end(), posed[i].model),
+                added_refined.end());
+      added_refined.push_back(posed[i].model);
+    }
+  }
+  EXPECT_GT(added, 0);  // the screening did run
+}
+
+// With class grouping the suggestions follow RecognitionResult::classes: the k-th
+// suggestion is the best one of the k-th most probable class (so "top-2 classes" are the
+// first two suggestions).
+TEST_F(ClassRankingTest, ClassGroupingFollowsTheClassProbabilities) {
+  const std::vector<Query> queries = MakeQueries(4, 93);
+  RecognitionOptions options;
+  options.grouping = SuggestionGrouping::kClass;
+  options.top_k = 4;
+  for (const Query& q : queries) {
+    const RecognitionResult result = Recogniser(*db_).Recognise(q.query.cloud, options);
+    ASSERT_FALSE(result.classes.empty());
+    const size_t n = std::min(result.classes.size(), result.suggestions.size());
+    for (size_t k = 0; k < n; ++k) {
+      EXPECT_EQ(result.suggestions[k].class_index, result.classes[k].class_index) << k;
+    }
+  }
+}
+
 // The JSON carries the class scores and ambiguous_with; the thesis preset has neither.
 TEST_F(ClassRankingTest, JsonHasClassScoresAndAmbiguity) {
   const std::vector<Query> queries = MakeQueries(1, 5);

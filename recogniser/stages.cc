@@ -487,7 +487,63 @@ std::vector<PoseCandidate> EstimatePoses(StageContext* context, const FineResult
        WidenSearch(context, fine, refined.best_score, request.views_per_model, options)) {
     posed.push_back(std::move(candidate));
   }
+  for (PoseCandidate& candidate : ScreenClasses(context, fine, posed, request.views_per_model,
+                                                options)) {
+    posed.push_back(std::move(candidate));
+  }
   return posed;
+}
+
+std::vector<PoseCandidate> ScreenClasses(StageContext* context, const FineResult& fine,
+                                         const std::vector<PoseCandidate>& posed,
+                                         int views_per_model, const RecognitionOptions& options) {
+  const AssemblyOptions& assembly = options.assembly;
+  if (!assembly.class_ranking || assembly.class_screen_classes <= 0 ||
+      options.screening.models <= 0 || options.refinement.candidates <= 0) {
+    return {};
+  }
+  const Database& db = context->db();
+  const int num_classes = static_cast<int>(db.classes().size());
+  // Refined models per class so far.
+  std::vector<int> refined_models;
+  std::vector<int> missing(num_classes, assembly.class_screen_models);
+  for (const PoseCandidate& candidate : posed) {
+    if (!candidate.refined || std::find(refined_models.begin(), refined_models.end(),
+                                        candidate.model) != refined_models.end()) {
+      continue;
+    }
+    refined_models.push_back(candidate.model);
+    --missing[db.model(candidate.model).class_index];
+  }
+  // The first class_screen_classes classes of the fine ranking (by their best view); each
+  // one with fewer than class_screen_models refined models gets its next models (in the
+  // order of their best views) screened.
+  std::vector<int> classes_seen;
+  ScreeningRequest request;
+  for (const RankedView& r : fine.ranked) {
+    const int model = db.view(r.view).model;
+    const int c = db.model(model).class_index;
+    if (std::find(classes_seen.begin(), classes_seen.end(), c) == classes_seen.end()) {
+      if (static_cast<int>(classes_seen.size()) >= assembly.class_screen_classes) continue;
+      classes_seen.push_back(c);
+    }
+    if (missing[c] <= 0 ||
+        std::find(refined_models.begin(), refined_models.end(), model) != refined_models.end() ||
+        std::find(request.models.begin(), request.models.end(), model) != request.models.end()) {
+      continue;
+    }
+    --missing[c];
+    request.models.push_back(model);
+  }
+  if (request.models.empty()) return {};
+  request.views_per_model = views_per_model;
+  request.rank_all_views = options.screening.rank_all_views;
+  request.hypotheses = options.pose;
+  std::vector<PoseCandidate> screened = ScreenPoses(context, fine, request, options);
+  // The best hypothesis of each screened model refined.
+  return RefinePoses(context, std::move(screened), static_cast<int>(request.models.size()),
+                     options)
+      .candidates;
 }
 
 std::vector<ClassScore> ScoreClasses(const StageContext& context, const FineResult& fine,
@@ -583,11 +639,19 @@ Assembly AssembleSuggestions(StageContext* context, const FineResult& fine,
   }
   std::vector<Suggestion> ordered = OrderSuggestions(*context, fine, posed, assembly);
   if (!result.classes.empty()) {
-    // The best suggestion of the most probable class first; the rest keep their order.
-    const int winner = result.classes.front().class_index;
-    const auto first = std::find_if(ordered.begin(), ordered.end(),
-                                    [winner](const Suggestion& s) { return s.class_index == winner; });
-    if (first != ordered.end()) std::rotate(ordered.begin(), first, first + 1);
+    // The best suggestion of the most probable class first (with class grouping, the best
+    // of each class in the order of the class probabilities); the rest keep their order.
+    const size_t leading =
+        options.grouping == SuggestionGrouping::kClass ? result.classes.size() : 1;
+    auto next = ordered.begin();
+    for (size_t k = 0; k < leading && next != ordered.end(); ++k) {
+      const int c = result.classes[k].class_index;
+      const auto first = std::find_if(next, ordered.end(),
+                                      [c](const Suggestion& s) { return s.class_index == c; });
+      if (first == ordered.end()) continue;
+      std::rotate(next, first, first + 1);
+      ++next;
+    }
   }
   std::vector<int> seen;
   for (Suggestion& s : ordered) {

@@ -153,7 +153,17 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
                                        double best_score, int views_per_model,
                                        const RecognitionOptions& options);
 
-// Screening → refinement → widening: every pose candidate (empty when
+// With class ranking (AssemblyOptions::class_screen_*): each of the first
+// class_screen_classes classes of the fine ranking with fewer than class_screen_models
+// refined models among `posed` gets its next models (by their best flagged view) screened
+// (views_per_model views each) and the best hypothesis of each refined, so that every class
+// the descriptors rank high is judged by the verification of as many of its models, not
+// only the classes of the first models. Empty when off.
+std::vector<PoseCandidate> ScreenClasses(StageContext* context, const FineResult& fine,
+                                         const std::vector<PoseCandidate>& posed,
+                                         int views_per_model, const RecognitionOptions& options);
+
+// Screening → refinement → widening → class screening: every pose candidate (empty when
 // ScreeningOptions::models is 0 or nothing was flagged).
 std::vector<PoseCandidate> EstimatePoses(StageContext* context, const FineResult& fine,
                                          const RecognitionOptions& options);

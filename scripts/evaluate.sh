@@ -21,6 +21,10 @@ mkdir -p "$out"
 # Before class-aware ranking (issue 16), the same database and queries.
 "$sope" eval --db "$out/class.sopedb" --models "$out/held_out" --queries-per-model 6 \
   --grouping class --no-class-ranking --out "$out/class_sope_no_class_ranking"
+# Class ranking without class screening (--class-screen-classes 0, the vote weight of before).
+"$sope" eval --db "$out/class.sopedb" --models "$out/held_out" --queries-per-model 6 \
+  --grouping class --class-screen-classes 0 --class-vote-weight 0.1 \
+  --out "$out/class_sope_no_class_screening"
 # The same queries scanned through the full pipeline on the virtual rig, with the same
 # occluder (its share of the scanned points hidden), with and without class-aware ranking.
 "$sope" eval --db "$out/class.sopedb" --models "$out/held_out" --queries-per-model 6 \

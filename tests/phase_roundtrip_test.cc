@@ -3,7 +3,7 @@
 // gamma 2.2 (linear camera, the default sensor noise), decoded and triangulated, against
 // the simulator's ground truth and against the Gray code on the same scene and rig.
 // Acceptance: ≥ 99% of the lit pixels decoded; median |projector coordinate − truth|
-// ≤ 0.05 px for a 3-frequency 4-step set; median depth error ≤ ⅓ of the Gray code's;
+// ≤ 0.05 px for a 3-frequency 4-step set (all scenes); median depth error ≤ ⅓ of the Gray code's;
 // ≤ 0.1% of the decoded pixels more than 1 px off. Gamma: the uncorrected 4-step phase
 // error has its ripple at 4× the phase; with the response measured from a grey ramp the
 // depth error's ripple component is ≤ ¼ of the uncorrected one.
@@ -37,8 +37,6 @@ const std::vector<double> kPeriods = {256, 32, 8};
 // The gamma tests: a finest period well above the projector's blur, where the harmonics
 // the response adds reach the camera undamped (see MeasuredResponseRemovesTheGammaRipple).
 const std::vector<double> kRipplePeriods = {256, 32};
-// Achieved (not the target) median coordinate error before the backdrop; see RunScene.
-constexpr double kAchievedBackdropMedianPx = 0.07;
 
 SensorOptions PhaseSensor() {
   SensorOptions options;  // default noise, defocus, blur, supersampling
@@ -153,12 +151,10 @@ void Print(const std::string& name, const Figures& f) {
               100 * f.outlier_fraction, 100 * f.unlit_fraction, 1e3 * f.median_depth_error);
 }
 
-// Phase (3 frequencies, 4 steps, measured response) and Gray code on one scene.
-// `max_median_px`: the issue's 0.05 px, met on the plane; the scenes before the darker
-// backdrop (0.72–0.75 m, albedo 0.6) measure 0.060–0.065 px at these periods with the
-// default sensor noise — short of the target (issue 10 stays open on that item), and
-// asserted at what is achieved so that a regression shows.
-void RunScene(const Scene& scene, const std::string& name, double max_median_px = 0.05) {
+// Phase (3 frequencies, 4 steps, measured response) and Gray code on one scene, the
+// decoder's defaults (the edge-preserving 3×3 local fit of the coordinate included; see
+// NoiseNotBiasLimitsThePerPixelCoordinate for why it is needed before the backdrops).
+void RunScene(const Scene& scene, const std::string& name) {
   const RigCalibration calibration = testing::SmallRig();
   VirtualRig rig(calibration, PhaseSensor());
   rig.SetScene(scene);
@@ -185,7 +181,7 @@ void RunScene(const Scene& scene, const std::string& name, double max_median_px 
                                   std::to_string(phase.median_depth_error / gray.median_depth_error));
   EXPECT_GT(phase.lit, 5000u) << "scene barely visible: test would prove little";
   EXPECT_GE(phase.decoded_fraction, 0.99);
-  EXPECT_LE(phase.median_coordinate_error, max_median_px);
+  EXPECT_LE(phase.median_coordinate_error, 0.05);
   EXPECT_LE(phase.outlier_fraction, 0.001);
   EXPECT_LE(phase.median_depth_error, gray.median_depth_error / 3.0);
 }
@@ -198,14 +194,9 @@ TEST(PhaseRoundTrip, TiltedPlane) {
   RunScene(scene, "plane");
 }
 
-TEST(PhaseRoundTrip, SphereBeforeBackdrop) {
-  Scene scene;
-  Placement placement;
-  placement.center_in_cam = Eigen::Vector3d(0.0, 0.0, 0.58);
-  scene.objects.push_back(PlaceObject(MakeSphere(0.08, 48, 96), placement));
-  scene.objects.push_back(MakeBackdrop(0.72, 1.5, 1.0));
-  RunScene(scene, "sphere", kAchievedBackdropMedianPx);
-}
+Scene SphereScene();
+
+TEST(PhaseRoundTrip, SphereBeforeBackdrop) { RunScene(SphereScene(), "sphere"); }
 
 TEST(PhaseRoundTrip, SharedMeshes) {
   SOPE_REQUIRE_SHARED_DATA(data);
@@ -218,8 +209,56 @@ TEST(PhaseRoundTrip, SharedMeshes) {
     scene.objects.push_back(PlaceObject(ReadMesh(data + "/meshes/" + name), placement));
     scene.objects.push_back(MakeBackdrop(0.75, 1.5, 1.0));
     SCOPED_TRACE(name);
-    RunScene(scene, name, kAchievedBackdropMedianPx);
+    RunScene(scene, name);
   }
+}
+
+Scene SphereScene() {
+  Scene scene;
+  Placement placement;
+  placement.center_in_cam = Eigen::Vector3d(0.0, 0.0, 0.58);
+  scene.objects.push_back(PlaceObject(MakeSphere(0.08, 48, 96), placement));
+  scene.objects.push_back(MakeBackdrop(0.72, 1.5, 1.0));
+  return scene;
+}
+
+// Why the scenes before a backdrop missed 0.05 px with per-pixel coordinates (0.060–0.065
+// px against the plane's 0.043): not the curvature. Without sensor noise the per-pixel
+// decode of the sphere scene is within 0.0085 px median of the truth at the pixel centre
+// (low- and high-slope pixels alike: 0.010 / 0.013 px), so the truth is consistent with
+// the rendering (footprint, blur, defocus) and the response correction works; with noise
+// it is 0.060 px, on the backdrop (0.72 m, albedo 0.6: ~80% of the lit pixels) 0.063 px
+// against 0.039 px on the brighter sphere — shot noise on a dimmer surface. Combining the
+// frequencies by their variances gains ≈ 3% (the 32-px group's variance is 16× the 8-px
+// one's); the edge-preserving local fit of the coordinate (PhaseDecoderOptions::
+// local_fit_radius) averages the independent per-pixel noise: ~3× on plane patches. Its
+// price, a bias ≈ (u_xx + u_yy)/3 on strongly curved patches (the sphere's rim: 0.04 px
+// without noise), stays below the noise it removes there.
+TEST(PhaseRoundTrip, NoiseNotBiasLimitsThePerPixelCoordinate) {
+  const RigCalibration calibration = testing::SmallRig();
+  RigCalibration measured = calibration;
+  measured.projector_response = MeasuredResponse();
+  ScanOptions per_pixel;
+  per_pixel.decoder.phase.local_fit_radius = 0;
+  const Scene scene = SphereScene();
+  SensorOptions noiseless = PhaseSensor();
+  noiseless.read_noise = 0;
+  noiseless.shot_noise = 0;
+  Figures figures[2][2];  // [noisy][fitted]
+  for (int noisy = 0; noisy < 2; ++noisy) {
+    VirtualRig rig(calibration, noisy ? PhaseSensor() : noiseless);
+    rig.SetScene(scene);
+    const FrameSet frames = CaptureSequence(rig, PhasePatterns(calibration));
+    figures[noisy][0] = Evaluate(rig.ground_truth(), ScanFrameSet(frames, measured, per_pixel));
+    figures[noisy][1] = Evaluate(rig.ground_truth(), ScanFrameSet(frames, measured));
+    Print(std::string("sphere ") + (noisy ? "noisy" : "noiseless") + " per-pixel", figures[noisy][0]);
+    Print(std::string("sphere ") + (noisy ? "noisy" : "noiseless") + " local fit", figures[noisy][1]);
+  }
+  EXPECT_LE(figures[0][0].median_coordinate_error, 0.015);  // the bias: small
+  EXPECT_GE(figures[1][0].median_coordinate_error, 4 * figures[0][0].median_coordinate_error);
+  EXPECT_LE(figures[1][1].median_coordinate_error, 0.5 * figures[1][0].median_coordinate_error);
+  EXPECT_LE(figures[1][1].outlier_fraction, figures[1][0].outlier_fraction);
+  EXPECT_GE(figures[1][1].decoded_fraction, figures[1][0].decoded_fraction);
 }
 
 // The gamma ripple: depth error against the finest x phase, its component at 4φ.

@@ -196,9 +196,9 @@ TEST(GrazingCoverage, SphereAndCylinderLitFromTheSide) {
         MeasureCoverage(scan, Decode(scan.frames, scan_decoder), kMinContrast);
     ReportCoverage(c.name, "scan", coverage);
     EXPECT_GT(coverage.counted, 100000u);
-    // Issue 11 asks for 97 %; the sphere reaches 96.5 % (its camera silhouette, where the
-    // stripes compress below a camera pixel, stays undecoded): asserted as measured.
-    EXPECT_GE(coverage.decoded, c.name == std::string("sphere") ? 0.965 : 0.97);
+    // Issue 11: ≥ 97 %. What stays undecoded is mostly the sphere's camera silhouette, where
+    // the stripes compress beyond 1.5 projector px per camera pixel.
+    EXPECT_GE(coverage.decoded, 0.97);
     EXPECT_GE(coverage.decoded, per_pixel.decoded + 0.03);
     EXPECT_LE(coverage.wrong, 0.005);
   }

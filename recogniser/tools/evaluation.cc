@@ -156,6 +156,10 @@ void ScoreOutcome(const Database& db, const EvalModel& model, const SyntheticQue
   outcome.score = best.score;
   outcome.flagged_fraction = result.flagged_fraction;
   outcome.timing = result.timing;
+  outcome.classes = result.classes;
+  for (const Suggestion& suggestion : result.suggestions) {
+    outcome.suggestion_classes.emplace_back(suggestion.class_name, suggestion.score);
+  }
   std::vector<std::string> classes_seen;  // distinct classes in suggestion order
   for (size_t s = 0; s < result.suggestions.size(); ++s) {
     const Suggestion& suggestion = result.suggestions[s];
@@ -743,6 +747,19 @@ std::string EvalReport::ToJson() const {
     q["mssd_over_diameter"] = JsonNumber(o.mssd_over_diameter);
     q["mspd_px"] = JsonNumber(o.mspd_px);
     q["flagged_fraction"] = o.flagged_fraction;
+    nlohmann::json classes = nlohmann::json::array();
+    for (const ClassScore& c : o.classes) {
+      classes.push_back({{"class", c.class_name},
+                         {"probability", c.probability},
+                         {"verification", c.verification},
+                         {"vote", c.vote}});
+    }
+    q["classes"] = std::move(classes);
+    nlohmann::json suggested = nlohmann::json::array();
+    for (const auto& [name, score] : o.suggestion_classes) {
+      suggested.push_back({{"class", name}, {"score", score}});
+    }
+    q["suggestions"] = std::move(suggested);
     q["total_ms_cpu"] = o.timing.total_cpu;
     list.push_back(std::move(q));
   }

@@ -116,6 +116,11 @@ struct QueryOutcome {
   double mssd_over_diameter;
   double mspd_px;
   double flagged_fraction = 0.0;
+  // The recogniser's class scores (RecognitionResult::classes, most probable first; empty
+  // without class ranking) and each suggestion's class and score, in order: why a miss
+  // was missed.
+  std::vector<ClassScore> classes;
+  std::vector<std::pair<std::string, double>> suggestion_classes;
   RecognitionTimings timing;
   // The best suggestion's database model (−1: none) and pose, and the query's true pose
   // (cam_from_model, metres): for BOP results files (recogniser/bop.h).
