@@ -197,7 +197,9 @@ void AddClusterHypotheses(const SceneContext& ctx, int cluster, const PointCloud
     h.cluster = cluster;
     h.recognition = recognition;
     std::swap(h.recognition.suggestions[0], h.recognition.suggestions[s]);
-    if (s != 0) h.recognition.recognised = suggestion.score >= options.recognition.assembly.min_score;
+    if (s != 0) {
+      h.recognition.recognised = suggestion.score >= options.recognition.assembly.min_score;
+    }
     if (on_table && !SnapToTable(ctx, &h)) continue;
     if (on_table && options.flip_hypotheses) {
       std::optional<Hypothesis> flipped = FlippedHypothesis(ctx, h);
@@ -255,8 +257,8 @@ std::vector<uint8_t> ExplainedMask(size_t num_scene_points,
 // Remainders: clusters the accepted hypotheses leave largely unexplained (at least
 // remainder_fraction of their thinned points) are recognised again on what is left.
 // True when that added hypotheses.
-bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<HypothesisEvidence>& evidence,
-                            HypothesisPool* pool) {
+bool AddRemainderHypotheses(const SceneContext& ctx,
+                            const std::vector<HypothesisEvidence>& evidence, HypothesisPool* pool) {
   const SceneRecognitionOptions& options = ctx.options;
   const std::vector<ObjectCluster>& clusters = ctx.clusters;
   const ThinnedScene& scene = ctx.scene;
@@ -495,8 +497,8 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     return result;
   }
   const ThinnedScene scene = ThinClusters(cloud, clusters, options.scene_leaf);
-  const SceneContext ctx{*this,   recogniser_, database_, cloud, options, result.segmentation.plane,
-                         clusters, scene};
+  const SceneContext ctx{*this, recogniser_, database_, cloud, options,
+                         result.segmentation.plane, clusters, scene};
 
   HypothesisPool pool;
   pool.cluster_results.resize(clusters.size());
