@@ -23,7 +23,11 @@ function(sope_add_test)
   if(ARG_LABELS)
     list(APPEND properties LABELS "${ARG_LABELS}")
   endif()
-  gtest_discover_tests(${ARG_NAME} DISCOVERY_MODE PRE_TEST PROPERTIES ${properties})
+  # Listing the tests runs the program once before ctest starts it: on a loaded or
+  # freshly booted machine loading its libraries can take longer than CMake's default 5 s
+  # (core_test once timed out there, failing the whole run), so allow a minute.
+  gtest_discover_tests(${ARG_NAME} DISCOVERY_MODE PRE_TEST DISCOVERY_TIMEOUT 60
+                       PROPERTIES ${properties})
 endfunction()
 
 # sope_add_bench(NAME name SRCS ... [DEPS ...])
