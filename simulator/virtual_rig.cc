@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <random>
 
@@ -405,6 +406,15 @@ bool TriangleSet::Occluded(const cv::Mat& ids, const Eigen::Vector2d& texel,
 
 namespace {
 
+// std::bit_cast of C++20.
+template <typename To, typename From>
+To BitCast(const From& from) {
+  static_assert(sizeof(To) == sizeof(From), "same size");
+  To to;
+  std::memcpy(&to, &from, sizeof(To));
+  return to;
+}
+
 using internal::PinholeView;
 using internal::RayHit;
 using internal::TriangleSet;
@@ -515,6 +525,18 @@ struct VirtualRig::Impl {
   int center_sample = -1;                       // index of offset (0, 0), −1 if absent
   // Grey-level thresholds of the response: output k ≥ 1 iff linear ≥ thresholds[k − 1].
   std::array<float, 255> response_thresholds{};
+  // The same lookup in O(1): std::upper_bound over response_thresholds (the grey level of
+  // a linear value) starts from the count at the lower edge of the value's bin and walks
+  // at most a step or two — the identical result (the walk is exact from any start). The
+  // bins are the top bits of the positive float (8 mantissa bits: 0.4% of the value wide),
+  // so they are as fine for the dark levels of a gamma curve as for the bright ones.
+  static constexpr int kResponseBinShift = 15;
+  std::vector<uint8_t> response_bin_count;
+  uint32_t response_first_bin = 0;
+  // Scratch of Capture, kept so that a sequence of captures does not fault in fresh pages.
+  cv::Mat capture_pattern, capture_linear;
+  void BuildResponseBins();
+  uint8_t Quantise(float value) const;
   std::mt19937_64 noise_engine;
 
   bool scene_set = false;
@@ -531,6 +553,36 @@ struct VirtualRig::Impl {
 
   SampleResult EvaluateSample(const Eigen::Vector2d& pixel) const;
 };
+
+void VirtualRig::Impl::BuildResponseBins() {
+  const float* thresholds = response_thresholds.data();
+  const float first = std::max(thresholds[0], std::numeric_limits<float>::min());
+  const float last = std::max(thresholds[254], first);
+  response_first_bin = BitCast<uint32_t>(first) >> kResponseBinShift;
+  const uint32_t last_bin = BitCast<uint32_t>(last) >> kResponseBinShift;
+  response_bin_count.resize(last_bin - response_first_bin + 1);
+  for (uint32_t bin = response_first_bin; bin <= last_bin; ++bin) {
+    const float edge = BitCast<float>(bin << kResponseBinShift);
+    response_bin_count[bin - response_first_bin] =
+        static_cast<uint8_t>(std::upper_bound(thresholds, thresholds + 255, edge) - thresholds);
+  }
+}
+
+inline uint8_t VirtualRig::Impl::Quantise(float value) const {
+  const float* thresholds = response_thresholds.data();
+  // Exactly std::upper_bound's answer: the first k with value < thresholds[k], 255 if none
+  // (also for NaN).
+  if (value < thresholds[0]) return 0;
+  if (!(value < thresholds[254])) return 255;
+  // thresholds[0] ≤ value < thresholds[254]: positive unless thresholds[0] ≤ 0.
+  const uint32_t bits = BitCast<uint32_t>(std::max(value, std::numeric_limits<float>::min()));
+  uint32_t bin = (bits >> kResponseBinShift) - response_first_bin;
+  bin = std::min<uint32_t>(bin, static_cast<uint32_t>(response_bin_count.size() - 1));
+  int k = response_bin_count[bin];
+  while (k > 0 && value < thresholds[k - 1]) --k;
+  while (k < 255 && !(value < thresholds[k])) ++k;
+  return static_cast<uint8_t>(k);
+}
 
 SampleResult VirtualRig::Impl::EvaluateSample(const Eigen::Vector2d& pixel) const {
   SampleResult result;
@@ -616,6 +668,7 @@ VirtualRig::VirtualRig(const RigCalibration& calibration, const SensorOptions& o
     d.response_thresholds[k - 1] =
         static_cast<float>(255.0 * std::pow((k - 0.5) / 255.0, options.gamma));
   }
+  d.BuildResponseBins();
   d.noise_engine.seed(options.seed);
 }
 
@@ -745,9 +798,27 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
   SOPE_CHECK(projector_image.type() == CV_8UC1 || projector_image.type() == CV_32FC1,
              "VirtualRig::Capture: projector image must be CV_8UC1 or CV_32FC1, got {}",
              cv::typeToString(projector_image.type()));
-  cv::Mat pattern;
+  const SensorOptions& o = d.options;
+  const bool response =
+      o.projector_gamma != 1.0 || o.projector_black_level != 0.0 || o.projector_saturation != 1.0;
+  const float black = static_cast<float>(o.projector_black_level);
+  const float saturation = static_cast<float>(o.projector_saturation);
+  const float gamma = static_cast<float>(o.projector_gamma);
+  const auto shown = [&](float value) {
+    const float v = std::min(value, saturation) / saturation;
+    return black + (1.0f - black) * std::pow(std::max(v, 0.0f), gamma);
+  };
+  cv::Mat& pattern = d.capture_pattern;
   if (projector_image.type() == CV_8UC1) {
-    projector_image.convertTo(pattern, CV_32F, 1.0 / 255.0);
+    // 256 levels: the conversion and the projector response, as convertTo and the float
+    // arithmetic below give them per pixel, as a table.
+    cv::Mat levels(1, 256, CV_8UC1), table;
+    for (int level = 0; level < 256; ++level) {
+      levels.at<uint8_t>(level) = static_cast<uint8_t>(level);
+    }
+    levels.convertTo(table, CV_32F, 1.0 / 255.0);
+    if (response) table.forEach<float>([&](float& value, const int*) { value = shown(value); });
+    cv::LUT(projector_image, table, pattern);
   } else {
     cv::Point bad_position;
     SOPE_CHECK(cv::checkRange(projector_image, true, &bad_position, 0.0, 1.0 + 1e-6),
@@ -755,24 +826,16 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
                "is {}",
                bad_position.x, bad_position.y,
                projector_image.at<float>(bad_position.y, bad_position.x));
-    pattern = projector_image.clone();
-  }
-  const SensorOptions& o = d.options;
-  if (o.projector_gamma != 1.0 || o.projector_black_level != 0.0 || o.projector_saturation != 1.0) {
-    const float black = static_cast<float>(o.projector_black_level);
-    const float saturation = static_cast<float>(o.projector_saturation);
-    const float gamma = static_cast<float>(o.projector_gamma);
-    pattern.forEach<float>([&](float& value, const int*) {
-      const float v = std::min(value, saturation) / saturation;
-      value = black + (1.0f - black) * std::pow(std::max(v, 0.0f), gamma);
-    });
+    projector_image.copyTo(pattern);
+    if (response) pattern.forEach<float>([&](float& value, const int*) { value = shown(value); });
   }
   if (d.options.defocus_sigma_px > 0.0) {
     cv::GaussianBlur(pattern, pattern, cv::Size(), d.options.defocus_sigma_px,
                      d.options.defocus_sigma_px, cv::BORDER_REPLICATE);
   }
   const int width = d.calibration.camera.width, height = d.calibration.camera.height;
-  cv::Mat linear(height, width, CV_32FC1);
+  cv::Mat& linear = d.capture_linear;
+  linear.create(height, width, CV_32FC1);
   const float* pattern_data = pattern.ptr<float>(0);
   const int stride = projector.width;
   cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
@@ -807,7 +870,6 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
   const float shot_noise = static_cast<float>(d.options.shot_noise);
   cv::Mat image(height, width, CV_8UC1);
   cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
-    const float* thresholds = d.response_thresholds.data();
     for (int y = rows.start; y < rows.end; ++y) {
       std::mt19937_64 engine(MixSeed(call_seed ^ static_cast<uint64_t>(y)));
       std::normal_distribution<float> normal(0.0f, 1.0f);
@@ -819,8 +881,7 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
           const float signal = std::max(value, 0.0f);
           value += std::sqrt(read_variance + shot_noise * signal) * normal(engine);
         }
-        out[x] = static_cast<uint8_t>(std::upper_bound(thresholds, thresholds + 255, value) -
-                                      thresholds);
+        out[x] = d.Quantise(value);
       }
     }
   });
