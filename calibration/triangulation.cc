@@ -439,7 +439,8 @@ struct Triangulator::RowScratch {
 
   // One chunk: camera ray, decoded coordinates, interpolation state, intermediate results.
   alignas(64) double ray_x[kChunk], ray_y[kChunk], coded_u[kChunk], coded_v[kChunk];
-  alignas(64) double look_u[kChunk], look_v[kChunk], frac_u[kChunk], frac_v[kChunk];
+  alignas(64) double look_u[kChunk], look_v[kChunk];
+  alignas(64) float frac_u[kChunk], frac_v[kChunk];
   alignas(64) int32_t index[kChunk];
   alignas(64) float top[4 * kChunk], bottom[4 * kChunk];  // (a, b) and (c, d) corner pairs
   alignas(64) double out0[kChunk], out1[kChunk], out2[kChunk];
@@ -494,16 +495,17 @@ struct Grid {
         max_v(table.rows - 1) {}
 };
 
-// Bilinear interpolation in `grid` (the exact path's arithmetic: (1 − f_v)((1 − f_u)a +
-// f_u·b) + f_v((1 − f_u)c + f_u·d)) at (u[i], v[i]): inside[i] whether the point is on
+// Bilinear interpolation in `grid` (the exact path's formula, (1 − f_v)((1 − f_u)a +
+// f_u·b) + f_v((1 − f_u)c + f_u·d), in float like the table: twice the lanes, and a
+// rounding of ~1e-7 of the normalised coordinate, ~1e-7 m of depth at 1 m) at (u[i], v[i]): inside[i] whether the point is on
 // the grid ([0, w − 1] × [0, h − 1], false for NaN); off it the value is that at (0, 0)
 // (the caller sends such points to the exact path or ignores them).
 void Interpolate(const Grid& grid_in, int n, const double* __restrict u_in,
                  const double* __restrict v_in, Triangulator::RowScratch* w,
                  double* __restrict out0, double* __restrict out1, uint8_t* __restrict inside) {
   const Grid grid = grid_in;
-  double* __restrict fu = w->frac_u;
-  double* __restrict fv = w->frac_v;
+  float* __restrict fu = w->frac_u;
+  float* __restrict fv = w->frac_v;
   int32_t* __restrict index = w->index;
   const int last_x = grid.width - 2, last_y = grid.height - 2;
   for (int i = 0; i < n; ++i) {
@@ -512,8 +514,8 @@ void Interpolate(const Grid& grid_in, int n, const double* __restrict u_in,
     const double u = in ? u0 : 0.0, v = in ? v0 : 0.0;
     const int32_t x0 = std::min(static_cast<int32_t>(u), last_x);
     const int32_t y0 = std::min(static_cast<int32_t>(v), last_y);
-    fu[i] = u - x0;
-    fv[i] = v - y0;
+    fu[i] = static_cast<float>(u - x0);
+    fv[i] = static_cast<float>(v - y0);
     index[i] = y0 * grid.stride + 2 * x0;
     inside[i] = in;
   }
@@ -526,7 +528,7 @@ void Interpolate(const Grid& grid_in, int n, const double* __restrict u_in,
     std::memcpy(bottom + 4 * i, data + index[i] + stride, 4 * sizeof(float));
   }
   for (int i = 0; i < n; ++i) {
-    const double a = fu[i], b = fv[i];
+    const float a = fu[i], b = fv[i];
     out0[i] = (1 - b) * ((1 - a) * top[4 * i] + a * top[4 * i + 2]) +
               b * ((1 - a) * bottom[4 * i] + a * bottom[4 * i + 2]);
     out1[i] = (1 - b) * ((1 - a) * top[4 * i + 1] + a * top[4 * i + 3]) +

@@ -8,26 +8,44 @@ function(sope_add_library)
   target_link_libraries(${ARG_NAME} PUBLIC ${ARG_DEPS} PRIVATE ${ARG_PRIVATE_DEPS})
 endfunction()
 
-# sope_add_test(NAME name SRCS ... [DEPS ...] [LABELS ...])
-#   A GoogleTest binary; each TEST becomes one CTest entry (discovered before test time,
-#   so the build does not run the binaries).
+# sope_add_test(NAME name SRCS ... [DEPS ...] [LABELS ...] [PER_CASE])
+#   A GoogleTest binary: one CTest entry named after it that runs all its tests in one
+#   process, so a suite's shared set-up (a database built, a scene rendered) is paid once,
+#   not once per test. PER_CASE (long, independent tests: calibrate_e2e_test) or
+#   -DSOPE_CTEST_PER_CASE=ON (every binary, e.g. to `ctest -R` one test) makes each TEST
+#   its own entry instead, discovered before test time so the build does not run them.
+option(SOPE_CTEST_PER_CASE "One CTest entry per GoogleTest case (default: per binary)" OFF)
 function(sope_add_test)
   if(NOT SOPE_BUILD_TESTS)
     return()
   endif()
-  cmake_parse_arguments(ARG "" "NAME" "SRCS;DEPS;LABELS" ${ARGN})
+  cmake_parse_arguments(ARG "PER_CASE" "NAME" "SRCS;DEPS;LABELS" ${ARGN})
   add_executable(${ARG_NAME} ${ARG_SRCS})
   target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} sope_test_support GTest::gtest
                         GTest::gtest_main)
-  set(properties TIMEOUT 900)
-  if(ARG_LABELS)
-    list(APPEND properties LABELS "${ARG_LABELS}")
+  if(ARG_PER_CASE OR SOPE_CTEST_PER_CASE)
+    # COST: with no timings from an earlier run, ctest starts the costliest first, so these
+    # long cases do not trail at the end of a parallel run.
+    set(properties TIMEOUT 900)
+    if(ARG_PER_CASE)
+      list(APPEND properties COST 1000)
+    endif()
+    if(ARG_LABELS)
+      list(APPEND properties LABELS "${ARG_LABELS}")
+    endif()
+    # Listing the tests runs the program once before ctest starts it: on a loaded or
+    # freshly booted machine loading its libraries can take longer than CMake's default
+    # 5 s (core_test once timed out there, failing the whole run), so allow a minute.
+    gtest_discover_tests(${ARG_NAME} DISCOVERY_MODE PRE_TEST DISCOVERY_TIMEOUT 60
+                         PROPERTIES ${properties})
+  else()
+    # The whole binary: its slowest (pipeline_test, ~90 s; ~4 min under ASan) well inside.
+    add_test(NAME ${ARG_NAME} COMMAND ${ARG_NAME})
+    set_tests_properties(${ARG_NAME} PROPERTIES TIMEOUT 1800)
+    if(ARG_LABELS)
+      set_tests_properties(${ARG_NAME} PROPERTIES LABELS "${ARG_LABELS}")
+    endif()
   endif()
-  # Listing the tests runs the program once before ctest starts it: on a loaded or
-  # freshly booted machine loading its libraries can take longer than CMake's default 5 s
-  # (core_test once timed out there, failing the whole run), so allow a minute.
-  gtest_discover_tests(${ARG_NAME} DISCOVERY_MODE PRE_TEST DISCOVERY_TIMEOUT 60
-                       PROPERTIES ${properties})
 endfunction()
 
 # sope_add_bench(NAME name SRCS ... [DEPS ...])
