@@ -497,9 +497,10 @@ struct Grid {
 
 // Bilinear interpolation in `grid` (the exact path's formula, (1 − f_v)((1 − f_u)a +
 // f_u·b) + f_v((1 − f_u)c + f_u·d), in float like the table: twice the lanes, and a
-// rounding of ~1e-7 of the normalised coordinate, ~1e-7 m of depth at 1 m) at (u[i], v[i]): inside[i] whether the point is on
-// the grid ([0, w − 1] × [0, h − 1], false for NaN); off it the value is that at (0, 0)
-// (the caller sends such points to the exact path or ignores them).
+// rounding of ~1e-7 of the normalised coordinate, ~1e-7 m of depth at 1 m) at
+// (u[i], v[i]): inside[i] whether the point is on the grid ([0, w − 1] × [0, h − 1],
+// false for NaN); off it the value is that at (0, 0) (the caller sends such points to
+// the exact path or ignores them).
 void Interpolate(const Grid& grid_in, int n, const double* __restrict u_in,
                  const double* __restrict v_in, Triangulator::RowScratch* w,
                  double* __restrict out0, double* __restrict out1, uint8_t* __restrict inside) {

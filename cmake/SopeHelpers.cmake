@@ -8,18 +8,19 @@ function(sope_add_library)
   target_link_libraries(${ARG_NAME} PUBLIC ${ARG_DEPS} PRIVATE ${ARG_PRIVATE_DEPS})
 endfunction()
 
-# sope_add_test(NAME name SRCS ... [DEPS ...] [LABELS ...] [PER_CASE])
+# sope_add_test(NAME name SRCS ... [DEPS ...] [LABELS ...] [SANITIZER_ENV ...] [PER_CASE])
 #   A GoogleTest binary: one CTest entry named after it that runs all its tests in one
 #   process, so a suite's shared set-up (a database built, a scene rendered) is paid once,
 #   not once per test. PER_CASE (long, independent tests: calibrate_e2e_test) or
 #   -DSOPE_CTEST_PER_CASE=ON (every binary, e.g. to `ctest -R` one test) makes each TEST
 #   its own entry instead, discovered before test time so the build does not run them.
+#   SANITIZER_ENV: VAR=value settings for the test's run in a sanitizer build only.
 option(SOPE_CTEST_PER_CASE "One CTest entry per GoogleTest case (default: per binary)" OFF)
 function(sope_add_test)
   if(NOT SOPE_BUILD_TESTS)
     return()
   endif()
-  cmake_parse_arguments(ARG "PER_CASE" "NAME" "SRCS;DEPS;LABELS" ${ARGN})
+  cmake_parse_arguments(ARG "PER_CASE" "NAME" "SRCS;DEPS;LABELS;SANITIZER_ENV" ${ARGN})
   add_executable(${ARG_NAME} ${ARG_SRCS})
   target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} sope_test_support GTest::gtest
                         GTest::gtest_main)
@@ -33,6 +34,9 @@ function(sope_add_test)
     if(ARG_LABELS)
       list(APPEND properties LABELS "${ARG_LABELS}")
     endif()
+    if(SOPE_SANITIZE AND ARG_SANITIZER_ENV)
+      list(APPEND properties ENVIRONMENT "${ARG_SANITIZER_ENV}")
+    endif()
     # Listing the tests runs the program once before ctest starts it: on a loaded or
     # freshly booted machine loading its libraries can take longer than CMake's default
     # 5 s (core_test once timed out there, failing the whole run), so allow a minute.
@@ -44,6 +48,9 @@ function(sope_add_test)
     set_tests_properties(${ARG_NAME} PROPERTIES TIMEOUT 1800)
     if(ARG_LABELS)
       set_tests_properties(${ARG_NAME} PROPERTIES LABELS "${ARG_LABELS}")
+    endif()
+    if(SOPE_SANITIZE AND ARG_SANITIZER_ENV)
+      set_tests_properties(${ARG_NAME} PROPERTIES ENVIRONMENT "${ARG_SANITIZER_ENV}")
     endif()
   endif()
 endfunction()

@@ -3,10 +3,11 @@
 // still override them.
 //  - allocator_may_return_null: an impossible allocation throws std::bad_alloc as in a
 //    normal build (the code under test turns it into an error) instead of aborting;
-//  - leak suppressions (not listed at exit): only for allocations that third-party libraries keep for the life
-//    of the process (not ours: a leak in sope still fails). The list is what these
-//    libraries are known for; `make sanitize` (2026-12-02) showed the OSMesa entry
-//    in use (5 blocks, 480 bytes per `sope simulate` run).
+//  - leak suppressions (not listed at exit): only for allocations that third-party
+//    libraries keep for the life of the process (not ours: a leak in sope still
+//    fails). The list is what these libraries are known for; `make sanitize`
+//    (2026-12-02) showed the OSMesa entry in use (5 blocks, 480 bytes per `sope
+//    simulate` run).
 extern "C" {
 
 __attribute__((used, visibility("default"))) const char* __asan_default_options() {
@@ -17,8 +18,9 @@ __attribute__((used, visibility("default"))) const char* __ubsan_default_options
   return "print_stacktrace=1:halt_on_error=1";
 }
 
-// print_suppressions=0: a run that used a suppression would otherwise end with LeakSanitizer's
-// table of them on stderr, breaking the one-error-line contract the CLI tests check.
+// print_suppressions=0: a run that used a suppression would otherwise end with
+// LeakSanitizer's table of them on stderr, breaking the one-error-line contract the CLI
+// tests check.
 __attribute__((used, visibility("default"))) const char* __lsan_default_options() {
   return "print_suppressions=0";
 }
