@@ -16,6 +16,13 @@ endfunction()
 #   its own entry instead, discovered before test time so the build does not run them.
 #   SANITIZER_ENV: VAR=value settings for the test's run in a sanitizer build only.
 option(SOPE_CTEST_PER_CASE "One CTest entry per GoogleTest case (default: per binary)" OFF)
+# Sanitizer builds run 3-10x slower (calibrate_e2e_test's cases ~9 min each under ASan on an
+# idle 2-core machine), so their timeouts are scaled; the limits catch hangs, not slowness.
+if(SOPE_SANITIZE)
+  set(SOPE_TEST_TIMEOUT_SCALE 3)
+else()
+  set(SOPE_TEST_TIMEOUT_SCALE 1)
+endif()
 function(sope_add_test)
   if(NOT SOPE_BUILD_TESTS)
     return()
@@ -27,7 +34,8 @@ function(sope_add_test)
   if(ARG_PER_CASE OR SOPE_CTEST_PER_CASE)
     # COST: with no timings from an earlier run, ctest starts the costliest first, so these
     # long cases do not trail at the end of a parallel run.
-    set(properties TIMEOUT 900)
+    math(EXPR timeout "900 * ${SOPE_TEST_TIMEOUT_SCALE}")
+    set(properties TIMEOUT ${timeout})
     if(ARG_PER_CASE)
       list(APPEND properties COST 1000)
     endif()
@@ -45,7 +53,8 @@ function(sope_add_test)
   else()
     # The whole binary: its slowest (pipeline_test, ~90 s; ~4 min under ASan) well inside.
     add_test(NAME ${ARG_NAME} COMMAND ${ARG_NAME})
-    set_tests_properties(${ARG_NAME} PROPERTIES TIMEOUT 1800)
+    math(EXPR timeout "1800 * ${SOPE_TEST_TIMEOUT_SCALE}")
+    set_tests_properties(${ARG_NAME} PROPERTIES TIMEOUT ${timeout})
     if(ARG_LABELS)
       set_tests_properties(${ARG_NAME} PROPERTIES LABELS "${ARG_LABELS}")
     endif()
