@@ -10,10 +10,12 @@
 #include "app/cli_util.h"
 #include "app/commands.h"
 #include "app/option_flags.h"
+#include "app/pipeline_flags.h"
 #include "core/error.h"
 #include "recogniser/bop.h"
 #include "recogniser/database.h"
 #include "recogniser/tools/evaluation.h"
+#include "simulator/virtual_rig.h"
 #include "pipeline/table_eval.h"
 
 namespace sope {
@@ -114,6 +116,14 @@ int RunEval(int argc, char** argv) {
   app.add_flag("--scan-occlusion", options.occlude_scans,
                "With --scan-pipeline: the query's occluder (--occlusion) hides its share of "
                "the scanned object's points");
+  // The scanned queries' pattern sequence: the flags of `sope patterns` / `scan`.
+  cli::PatternFlags pattern_flags;
+  CLI::App* patterns_group =
+      app.add_option_group("scan patterns (--scan-pipeline)",
+                           "The pattern sequence scanned queries are captured with (default "
+                           "Gray code x and y with inverses): --code phase --periods "
+                           "1024,128,16, --code gray+phase --period 16, ...");
+  pattern_flags.Add(*patterns_group);
   app.add_option("--adds", options.adds_fraction, "ADD-S threshold, fraction of the diameter")
       ->capture_default_str();
   // Recognition options (--top, --pose-models, --flag-fraction, …; RecognitionOptions::
@@ -149,9 +159,21 @@ int RunEval(int argc, char** argv) {
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
 
+  // The scanned protocols' projector: the virtual rig's (periods are checked against it).
+  SOPE_CHECK(patterns_group->count_all() == 0 || options.through_scan || table,
+             "pattern flags (--code, --periods, ...) are for scanned queries (--scan-pipeline "
+             "or --table)");
   if (table) {
+    if (patterns_group->count_all() > 0) {
+      const CameraModel projector = DefaultRigCalibration().projector;
+      table_options.source.patterns = pattern_flags.ToOptions(projector.width, projector.height);
+    }
     return RunTableEval(db_path, recognition_flags, given, options, procedural, table_meshes,
                         table_options, out);
+  }
+  if (options.through_scan) {
+    options.scan_patterns = pattern_flags.ToOptions(options.scan_patterns.projector_width,
+                                                    options.scan_patterns.projector_height);
   }
   options.protocol = protocol_text.empty()
                          ? (models_dir.empty() ? EvalProtocol::kInstance : EvalProtocol::kClass)

@@ -183,6 +183,7 @@ TableEvalSummary RunTableEvaluation(const Database& database, const TableEvalOpt
   const ScanAndRecogniseOptions controller_options = SceneControllerOptions(options, out_dir);
   TableEvalSummary summary;
   summary.stage_names = {"decode", "triangulate", "segment", "recognise", "frame_to_result"};
+  summary.patterns = DescribePatterns(SceneSourceOptions(options, 0).patterns);
   std::vector<std::vector<double>> stage_ms(summary.stage_names.size());
   std::mt19937_64 rng(options.seed);
   std::unique_ptr<VirtualTableSource> procedural;
@@ -219,8 +220,8 @@ std::string TableEvalSummary::Markdown() const {
   std::string md = "# Tabletop evaluation (sope eval --table)\n\n";
   md += fmt::format("{} scenes scanned through the full virtual-rig pipeline ({} skipped: their "
                     "objects did not fit on the visible table); {} known objects, {} detections, "
-                    "{} clutter objects.\n\n",
-                    scenes, skipped_scenes, known, detections, clutter);
+                    "{} clutter objects. Patterns: {}.\n\n",
+                    scenes, skipped_scenes, known, detections, clutter, patterns);
   md += "| figure | value |\n|---|---|\n";
   md += fmt::format("| detection recall (model right, ADD-S < 10% diameter) | {:.1f}% ({}/{}) |\n",
                     100 * recall, correct, known);
@@ -245,6 +246,7 @@ std::string TableEvalSummary::Markdown() const {
 
 std::string TableEvalSummary::Json() const {
   nlohmann::json j = {{"scenes", scenes},
+                      {"patterns", patterns},
                       {"skipped_scenes", skipped_scenes},
                       {"known", known},
                       {"detections", detections},

@@ -53,6 +53,7 @@ struct TableEvalSummary {
   std::vector<std::string> stage_names;
   std::vector<double> stage_median_ms, stage_p95_ms;
   std::vector<std::string> scan_lines;  // every scan's JSON line
+  std::string patterns;                 // the scanned pattern sequence (DescribePatterns)
   // Markdown report.
   std::string Markdown() const;
   std::string Json() const;

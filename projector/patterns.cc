@@ -135,6 +135,44 @@ std::vector<double> PhasePeriodsFor(const PatternOptions& options, int size) {
   return periods;
 }
 
+std::string DescribePatterns(const PatternOptions& options) {
+  const std::string axes = "axes " + ToString(options.axes);
+  const std::string code = options.code == PatternCode::kGray ? "Gray code" : "binary code";
+  const std::string precompensated =
+      options.precompensate.IsIdentity() ? "" : ", pre-distorted for the projector response";
+  switch (options.family) {
+    case PatternFamily::kStripes: {
+      std::string text = fmt::format("{}, {}", code, axes);
+      if (options.inverted) text += ", inverses";
+      if (options.skip_low_bits > 0) {
+        text += fmt::format(", {} low bits skipped", options.skip_low_bits);
+      }
+      return text;
+    }
+    case PatternFamily::kPhase: {
+      const auto periods = [&](int size) {
+        return fmt::format("{:g}", fmt::join(PhasePeriodsFor(options, size), "/"));
+      };
+      std::string text;
+      if (options.axes == PatternAxes::kXY && options.periods.empty()) {
+        // Automatic periods follow each axis' size.
+        text = fmt::format("periods {} px (x), {} px (y)", periods(options.projector_width),
+                           periods(options.projector_height));
+      } else {
+        text = fmt::format("periods {} px", periods(options.axes == PatternAxes::kY
+                                                        ? options.projector_height
+                                                        : options.projector_width));
+      }
+      return fmt::format("phase shift, {}, {}, {} steps{}", axes, text, options.steps,
+                         precompensated);
+    }
+    case PatternFamily::kGrayPhase:
+      return fmt::format("{} + phase shift at {:g} px, {}, {} steps{}", code, options.period,
+                         axes, options.steps, precompensated);
+  }
+  return "?";
+}
+
 PatternAxes PatternAxesFromString(const std::string& text) {
   if (text == "x") return PatternAxes::kX;
   if (text == "y") return PatternAxes::kY;

@@ -66,6 +66,9 @@ struct Pattern {
 constexpr double kMinAutoPeriod = 8.0;
 // The periods GeneratePatterns uses on an axis of `size` pixels, coarsest first.
 std::vector<double> PhasePeriodsFor(const PatternOptions& options, int size);
+// One line for reports: "Gray code, axes xy, inverses", "phase shift, axes x, periods
+// 1024/128/16 px, 4 steps", "Gray code + phase shift at 16 px, axes xy, 4 steps".
+std::string DescribePatterns(const PatternOptions& options);
 
 // Gray code: neighbouring values differ in exactly one bit.
 inline uint32_t GrayFromBinary(uint32_t value) { return value ^ (value >> 1); }

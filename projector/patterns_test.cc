@@ -437,5 +437,26 @@ TEST(PhasePatterns, InvalidOptionsNameTheValue) {
                             "unknown pattern code 'sine'");
 }
 
+// The one-line description reports print (sope eval's scanned protocols).
+TEST(DescribePatterns, NamesTheFamilyAxesAndPeriods) {
+  PatternOptions options;
+  EXPECT_EQ(DescribePatterns(options), "Gray code, axes xy, inverses");
+  options.inverted = false;
+  options.skip_low_bits = 2;
+  EXPECT_EQ(DescribePatterns(options), "Gray code, axes xy, 2 low bits skipped");
+  options.family = PatternFamily::kPhase;
+  EXPECT_EQ(DescribePatterns(options),
+            "phase shift, axes xy, periods 1024/128/16 px (x), 768/96/12 px (y), 4 steps");
+  options.periods = {1024, 64, 8};
+  options.axes = PatternAxes::kX;
+  options.steps = 3;
+  EXPECT_EQ(DescribePatterns(options), "phase shift, axes x, periods 1024/64/8 px, 3 steps");
+  options.family = PatternFamily::kGrayPhase;
+  options.precompensate = ProjectorResponse::Gamma(2.2);
+  EXPECT_EQ(DescribePatterns(options),
+            "Gray code + phase shift at 16 px, axes x, 3 steps, pre-distorted for the projector "
+            "response");
+}
+
 }  // namespace
 }  // namespace sope

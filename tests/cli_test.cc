@@ -202,6 +202,12 @@ TEST_F(Cli, UsageErrorsAreOneLine) {
   ExpectOneLineError(Sope("build-db --models m --out d.sopedb --threads four", local_),
                      "build-db", "four");
   ExpectOneLineError(Sope("scan -q --frames x --out y --bogus", local_), "scan", "--bogus");
+  // eval's pattern flags: only for scanned queries, checked before the database is opened.
+  ExpectOneLineError(Sope("eval --db none.sopedb --code phase --out r", local_), "eval",
+                     "--scan-pipeline or --table");
+  ExpectOneLineError(Sope("eval --db none.sopedb --scan-pipeline --code phase --periods 100,10 "
+                          "--out r", local_),
+                     "eval", "coarsest phase period 100 px");
 }
 
 TEST_F(Cli, ImpossibleValuesAndCountsAreRefused) {

@@ -230,6 +230,16 @@ void EvalOptions::Check() const {
   SOPE_CHECK(adds_fraction > 0.0, "ADD-S threshold must be positive, got {}", adds_fraction);
   query.Check();
   recognition.Check();
+  if (through_scan) ScanPatterns(*this);  // checks the sequence on the rig's projector
+}
+
+PatternOptions ScanPatterns(const EvalOptions& options) {
+  const CameraModel projector = DefaultRigCalibration().projector;
+  PatternOptions patterns = options.scan_patterns;
+  patterns.projector_width = projector.width;
+  patterns.projector_height = projector.height;
+  patterns.Check();
+  return patterns;
 }
 
 std::vector<EvalModel> InstanceModels(const Database& db) {
@@ -313,8 +323,7 @@ EvalReport Evaluate(const Database& db, const std::vector<EvalModel>& models,
     camera = MakePinhole(rig_camera.width, rig_camera.height, HorizontalFov(rig_camera));
     rig = std::make_unique<VirtualRig>(rig_calibration);
     triangulator = std::make_unique<Triangulator>(rig_calibration, scan_options.triangulation);
-    patterns.projector_width = rig_calibration.projector.width;
-    patterns.projector_height = rig_calibration.projector.height;
+    patterns = ScanPatterns(options);
   }
   report.query_image_width = camera.width;
   // Scanned queries get no occluder, or (occlude_scans) the same as depth-rendered ones
@@ -601,9 +610,10 @@ std::string EvalReport::ToMarkdown() const {
       1e3 * options.query.depth_noise, Percent(options.query.max_occlusion),
       options.camera_width, options.camera_height, options.camera_fov * kRadToDeg);
   if (options.through_scan) {
-    md += "Queries scanned through the full pipeline: the model before a backdrop on the "
-          "virtual rig, Gray code rendered, decoded, triangulated, cut to the object by a "
-          "range band";
+    md += fmt::format("Queries scanned through the full pipeline: the model before a backdrop "
+                      "on the virtual rig, patterns ({}) rendered, decoded, triangulated, cut to "
+                      "the object by a range band",
+                      DescribePatterns(ScanPatterns(options)));
     md += options.occlude_scans ? "; then the query's occluder hides its share of the scanned "
                                   "points.\n\n"
                                 : " (no occluder).\n\n";
@@ -678,6 +688,7 @@ std::string EvalReport::ToJson() const {
   j["method"] = options.method_name;
   j["through_scan"] = options.through_scan;
   j["occlude_scans"] = options.occlude_scans;
+  if (options.through_scan) j["scan_patterns"] = DescribePatterns(ScanPatterns(options));
   j["database"] = {{"path", database_path},
                    {"models", database_models},
                    {"views", database_views},

@@ -23,6 +23,7 @@
 #include <vector>
 
 #include "core/mesh.h"
+#include "projector/patterns.h"
 #include "recogniser/database.h"
 #include "recogniser/pose_metrics.h"
 #include "recogniser/recogniser.h"
@@ -70,17 +71,24 @@ struct EvalOptions {
   double rotation_threshold_deg = 5.0;  // shown as a line on the error histogram
   // Through the full scan pipeline instead of a depth rendering: the model at the query's
   // pose before a backdrop on the virtual rig (DefaultRigCalibration: projector light,
-  // shadows, lens distortion, defocus, noise, 8-bit), the Gray-code sequence rendered,
+  // shadows, lens distortion, defocus, noise, 8-bit), the scan_patterns sequence rendered,
   // decoded, triangulated and cut to the object by a range band in front of the backdrop
   // (recogniser/tools/scan_recognition.h). No occluder (query.max_occlusion is ignored); the
   // query camera is the rig's camera. ~1 s of rendering per query.
   bool through_scan = false;
+  // With through_scan: the pattern sequence (Gray code, phase shift or Gray + phase; its
+  // projector size is the rig's and is set by Evaluate). Default: Gray code x and y with
+  // inverses and white/black frames.
+  PatternOptions scan_patterns;
   // With through_scan: the query's occluder (query.max_occlusion, the same draws as the
   // depth-rendered protocol) hides its share of the scanned object's points (HideBeyondEdge:
   // the occluder segmented away, as a range band would). false: no occluder.
   bool occlude_scans = false;
   void Check() const;
 };
+
+// The pattern sequence of options.through_scan on the virtual rig's projector, checked.
+PatternOptions ScanPatterns(const EvalOptions& options);
 
 struct QueryOutcome {
   int query_model = 0;  // into the EvalModel list

@@ -182,6 +182,40 @@ TEST_F(EvaluationTest, ThroughTheScanPipeline) {
   EXPECT_NE(report.ToMarkdown().find("full pipeline"), std::string::npos);
 }
 
+// Issue 10: scanned queries captured with phase-shift sequences — three periods on both
+// axes (ray–ray), and Gray + phase on x alone (ray–plane) — score as the Gray code does.
+TEST_F(EvaluationTest, ThroughTheScanPipelineWithPhaseShift) {
+  std::vector<EvalModel> models = InstanceModels(*db_);
+  models.resize(2);
+  EvalOptions options;
+  options.queries_per_model = 2;
+  options.through_scan = true;
+  options.scan_patterns.family = PatternFamily::kPhase;  // automatic periods, 4 steps
+  const EvalReport phase = Evaluate(*db_, models, options);
+  std::printf("%s\n", phase.BriefReport().c_str());
+  options.scan_patterns.family = PatternFamily::kGrayPhase;  // 16 px
+  options.scan_patterns.axes = PatternAxes::kX;
+  models.resize(1);
+  const EvalReport gray_phase = Evaluate(*db_, models, options);
+  std::printf("%s\n", gray_phase.BriefReport().c_str());
+  for (const EvalReport* report : {&phase, &gray_phase}) {
+    for (const QueryOutcome& o : report->outcomes) {
+      ASSERT_TRUE(o.error.empty()) << o.error;
+      EXPECT_GT(o.cloud_points, 1000);
+    }
+    EXPECT_GE(report->ModelTop1(), 0.75);
+    EXPECT_LT(report->MedianRotationErrorDeg(), 3.0);
+    EXPECT_LT(report->MedianTranslationErrorMm(), 3.0);
+  }
+  ASSERT_EQ(phase.queries(), 4);
+  ASSERT_EQ(gray_phase.queries(), 2);
+  EXPECT_NE(phase.ToMarkdown().find(
+                "phase shift, axes xy, periods 1024/128/16 px (x), 768/96/12 px (y), 4 steps"),
+            std::string::npos);
+  EXPECT_NE(gray_phase.ToJson().find("Gray code + phase shift at 16 px, axes x"),
+            std::string::npos);
+}
+
 // Issue 16: the scanned class protocol with occlusion — the query's occluder hides its
 // share of the scanned object's points.
 TEST_F(EvaluationTest, ScannedQueriesCanBeOccluded) {
