@@ -195,6 +195,8 @@ int RunCalibrate(int argc, char** argv) {
   app.add_option("--min-outlier-rms", options.min_outlier_rms_px,
                  "Never drop views with an RMS below this, pixels")
       ->capture_default_str();
+  // Board views decode per pixel (the corners' local homographies need no filled pixels).
+  decoder_flags.consistency = false;
   decoder_flags.Add(app);
   live_flags.Add(*app.add_option_group("live capture (--camera)"));
   logging.Add(app);

@@ -77,9 +77,11 @@ void DecoderFlags::Add(CLI::App& app) {
                  "Gray codes: off (stripe centres, integer) or edges (sub-pixel from the two "
                  "stripe edges around each pixel)")
       ->capture_default_str();
-  app.add_flag("--consistency", consistency,
-               "Code sets: also decode pixels left undecided from their own bit margins within "
-               "the range their decoded neighbours predict (dim, grazing surfaces)");
+  app.add_flag("--consistency,!--no-consistency", consistency,
+               std::string("Code sets: also decode pixels left undecided from their own bit "
+                           "margins within the range their decoded neighbours predict (dim, "
+                           "grazing surfaces); default ") +
+                   (consistency ? "on" : "off"));
   app.add_flag("--no-gamma-correction", no_gamma_correction,
                "Phase sets: ignore the calibration's projector_response (e.g. for patterns "
                "pre-distorted with --pattern-gamma)");

@@ -37,7 +37,7 @@ struct DecoderFlags {
   DecoderOptions options;
   std::string mode = "auto";
   std::string gray_subpixel = "edges";
-  bool consistency = false;
+  bool consistency = true;  // set before Add() for another default (calibrate: off)
   bool no_gamma_correction = false;
   void Add(CLI::App& app);
   DecoderOptions ToOptions() const;

@@ -11,11 +11,13 @@
 namespace sope {
 
 struct ScanOptions {
-  // Scans refine Gray codes to sub-pixel (decoder/gray_refine.h) by default; the spatial
-  // code consistency (decoder/code_consistency.h) is opt-in.
+  // Scans refine Gray codes to sub-pixel (decoder/gray_refine.h) and decode the pixels
+  // the per-pixel decoder left undecided from their neighbours and their own bits
+  // (decoder/code_consistency.h: dim, grazing surfaces) by default.
   DecoderOptions decoder = [] {
     DecoderOptions options;
     options.gray_subpixel = GraySubpixel::kEdges;
+    options.consistency.enabled = true;
     return options;
   }();
   TriangulationOptions triangulation;

@@ -175,6 +175,16 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
   }
   const int rows = map->height(), cols = map->width();
   const int radius = options.consistency.window_radius;
+  // White − black, or without them the largest bit margin.
+  const auto contrast_at = [&](int x, int y) {
+    if (white && black) return Grey(*white, x, y) - Grey(*black, x, y);
+    float contrast = 0.0f;
+    for (const AxisFrames& axis : axes) {
+      for (size_t k = 0; k < axis.pattern.size(); ++k)
+        contrast = std::max(contrast, std::abs(Margin(axis, k, white, black, x, y)));
+    }
+    return contrast;
+  };
   for (int pass = 0; pass < options.consistency.passes; ++pass) {
     // Decided from the map as it was before this pass (rows in parallel, no order effects).
     const cv::Mat mask_before = map->mask.clone();
@@ -187,17 +197,28 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       for (int y = range.start; y < range.end; ++y) {
         for (int x = 0; x < cols; ++x) {
           if (mask_before.at<uint8_t>(y, x)) continue;
-          // Contrast.
-          float contrast = 0.0f;
-          if (white && black) {
-            contrast = Grey(*white, x, y) - Grey(*black, x, y);
-          } else {
-            for (const AxisFrames& axis : axes) {
-              for (size_t k = 0; k < axis.pattern.size(); ++k)
-                contrast = std::max(contrast, std::abs(Margin(axis, k, white, black, x, y)));
+          const float contrast = contrast_at(x, y);
+          if (!(contrast >= options.consistency.min_contrast)) continue;
+          // Relative to the decoded neighbours': a pixel much darker than the surface
+          // around it is at a shadow's edge (partly lit, its code a mixture), whereas a
+          // dim, grazing surface darkens smoothly with its neighbours.
+          if (options.consistency.min_relative_contrast > 0.0) {
+            float sum = 0.0f;
+            int count = 0;
+            for (int dy = -radius; dy <= radius; ++dy) {
+              const int yy = y + dy;
+              if (yy < 0 || yy >= rows) continue;
+              for (int dx = -radius; dx <= radius; ++dx) {
+                const int xx = x + dx;
+                if (xx < 0 || xx >= cols || !mask_before.at<uint8_t>(yy, xx)) continue;
+                sum += contrast_at(xx, yy);
+                ++count;
+              }
+            }
+            if (count > 0 && contrast < options.consistency.min_relative_contrast * sum / count) {
+              continue;
             }
           }
-          if (!(contrast >= options.consistency.min_contrast)) continue;
           Choice choices[2];
           bool ok = true;
           for (size_t a = 0; a < axes.size() && ok; ++a) {
@@ -238,6 +259,13 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
               break;
             }
             const float predicted = static_cast<float>(plane[0]);
+            // Beyond the projector's outermost pixel centre: the pixel sees the edge of the
+            // projected light (its code is the edge block's only by extrapolation), not a
+            // code — filled, it triangulated to a point off the surface.
+            if (!(predicted >= 0.0f && predicted <= static_cast<float>(axes[a].size - 1))) {
+              ok = false;
+              break;
+            }
             const float gradient = static_cast<float>(std::hypot(plane[1], plane[2]));
             // Stripes compressed below the camera's resolution (a surface seen at grazing
             // incidence): the neighbours cannot bound the code to a pixel.

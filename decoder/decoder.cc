@@ -849,6 +849,11 @@ void DecoderOptions::Check() const {
                  consistency.min_contrast <= 255.0,
              "consistency.min_contrast {} must be in [0, 255] grey levels",
              consistency.min_contrast);
+  SOPE_CHECK(std::isfinite(consistency.min_relative_contrast) &&
+                 consistency.min_relative_contrast >= 0.0 &&
+                 consistency.min_relative_contrast <= 1.0,
+             "consistency.min_relative_contrast {} must be in [0, 1]",
+             consistency.min_relative_contrast);
   SOPE_CHECK(consistency.window_radius >= 1 && consistency.window_radius <= 32,
              "consistency.window_radius {} must be in 1..32", consistency.window_radius);
   SOPE_CHECK(consistency.min_neighbours >= 1 &&

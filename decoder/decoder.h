@@ -69,13 +69,16 @@ struct DecoderOptions {
   // CLI's --gray-subpixel) and calibration default to kEdges.
   GraySubpixel gray_subpixel = GraySubpixel::kOff;
   // Spatial code consistency (decoder/code_consistency.h): pixels left invalid are decoded
-  // from their own bit margins within the range their decoded neighbours predict. Off by
-  // default (the per-pixel decode, comparable with OpenCV's; `--consistency` in the CLI): it
-  // can still admit a wrong code at occlusion edges of small rigs (tests/cli_test's box scene).
+  // from their own bit margins within the range their decoded neighbours predict. Off here
+  // (the per-pixel decode, comparable with OpenCV's); on in scans (ScanOptions) and in the
+  // CLI's decode/scan commands (`--no-consistency` turns it off).
   struct Consistency {
     bool enabled = false;
-    // Minimum white − black contrast of a filled pixel, grey levels (8-bit scale).
+    // Minimum white − black contrast of a filled pixel, grey levels (8-bit scale), and as
+    // a fraction of its decoded neighbours' mean (0 = off): a pixel at a shadow's edge is
+    // much darker than the lit surface beside it.
     double min_contrast = 4.0;
+    double min_relative_contrast = 0.4;
     // Half side of the neighbour window, camera pixels, and the decoded neighbours needed.
     int window_radius = 3;
     int min_neighbours = 12;

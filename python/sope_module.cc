@@ -381,12 +381,13 @@ PYBIND11_MODULE(_sope, m) {
   // Decoding and triangulation.
   m.def("decode",
         [](const FrameSet& set, double min_contrast, double min_bit_contrast, int num_threads,
-           const std::string& gray_subpixel) {
+           const std::string& gray_subpixel, bool consistency) {
           DecoderOptions options;
           options.min_contrast = min_contrast;
           options.min_bit_contrast = min_bit_contrast;
           options.num_threads = num_threads;
           options.gray_subpixel = GraySubpixelFromString(gray_subpixel);
+          options.consistency.enabled = consistency;
           options.Check();
           CorrespondenceMap map;
           {
@@ -398,8 +399,10 @@ PYBIND11_MODULE(_sope, m) {
         py::arg("frame_set"), py::arg("min_contrast") = DecoderOptions().min_contrast,
         py::arg("min_bit_contrast") = DecoderOptions().min_bit_contrast,
         py::arg("num_threads") = 1, py::arg("gray_subpixel") = "edges",
+        py::arg("consistency") = true,
         "Correspondence maps (Gray codes refined from the stripe edges unless "
-        "gray_subpixel='off', as `sope decode`): {'proj_x', 'proj_y' (float32, NaN invalid), 'mask' (uint8), "
+        "gray_subpixel='off', and undecided pixels decoded from their neighbours unless "
+        "consistency=False, as `sope decode`): {'proj_x', 'proj_y' (float32, NaN invalid), 'mask' (uint8), "
         "'confidence' (float32), 'projector_width', 'projector_height', 'step_x', 'step_y'}");
   m.def("triangulate",
         [](const py::dict& maps, const py::dict& calibration, const py::object& white) {

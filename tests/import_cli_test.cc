@@ -49,9 +49,11 @@ TEST(ImportCli, RealOpenCvCaptureReplacesTheHandWrittenManifest) {
   const FrameSetManifest manifest =
       MakeOpenCvGrayCodeManifest(512, 384, first.cols, first.rows, files);
   WriteFileAtomic(scratch.File("hand/frames.json"), SerializeFrameSetManifest(manifest));
-  // Decoded as `sope decode` decodes by default (Gray codes refined from the stripe edges).
+  // Decoded as `sope decode` decodes by default (Gray codes refined from the stripe edges,
+  // undecided pixels decoded from their neighbours).
   DecoderOptions as_cli;
   as_cli.gray_subpixel = GraySubpixel::kEdges;
+  as_cli.consistency.enabled = true;
   const CorrespondenceMap from_hand = Decode(LoadFrameSet(scratch.File("hand")), as_cli);
 
   ASSERT_GT(from_hand.CountValid(), from_hand.mask.total() / 10);

@@ -190,8 +190,8 @@ TEST(GrazingCoverage, SphereAndCylinderLitFromTheSide) {
     // sub-pixel and spatial code consistency).
     const Coverage per_pixel = MeasureCoverage(scan, Decode(scan.frames), kMinContrast);
     ReportCoverage(c.name, "per-pixel", per_pixel);
-    DecoderOptions scan_decoder = ScanOptions().decoder;
-    scan_decoder.consistency.enabled = true;
+    const DecoderOptions scan_decoder = ScanOptions().decoder;
+    ASSERT_TRUE(scan_decoder.consistency.enabled);  // the scans' default
     const Coverage coverage =
         MeasureCoverage(scan, Decode(scan.frames, scan_decoder), kMinContrast);
     ReportCoverage(c.name, "scan", coverage);
