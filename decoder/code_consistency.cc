@@ -191,6 +191,17 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     const cv::Mat x_before = map->HasX() ? map->proj_x.clone() : cv::Mat();
     const cv::Mat y_before = map->HasY() ? map->proj_y.clone() : cv::Mat();
     std::vector<int> filled_per_row(rows, 0);
+    // fn(dx, dy) for the pixels of the window around (x, y) decoded before this pass.
+    const auto for_each_decoded_neighbour = [&](int x, int y, const auto& fn) {
+      for (int dy = -radius; dy <= radius; ++dy) {
+        const int yy = y + dy;
+        if (yy < 0 || yy >= rows) continue;
+        for (int dx = -radius; dx <= radius; ++dx) {
+          const int xx = x + dx;
+          if (xx >= 0 && xx < cols && mask_before.at<uint8_t>(yy, xx)) fn(dx, dy);
+        }
+      }
+    };
     cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
       std::vector<float> margins;
       std::vector<cv::Vec3f> samples;
@@ -205,16 +216,10 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
           if (options.consistency.min_relative_contrast > 0.0) {
             float sum = 0.0f;
             int count = 0;
-            for (int dy = -radius; dy <= radius; ++dy) {
-              const int yy = y + dy;
-              if (yy < 0 || yy >= rows) continue;
-              for (int dx = -radius; dx <= radius; ++dx) {
-                const int xx = x + dx;
-                if (xx < 0 || xx >= cols || !mask_before.at<uint8_t>(yy, xx)) continue;
-                sum += contrast_at(xx, yy);
-                ++count;
-              }
-            }
+            for_each_decoded_neighbour(x, y, [&](int dx, int dy) {
+              sum += contrast_at(x + dx, y + dy);
+              ++count;
+            });
             if (count > 0 && contrast < options.consistency.min_relative_contrast * sum / count) {
               continue;
             }
@@ -228,20 +233,14 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
             cv::Matx33d normal = cv::Matx33d::zeros();
             cv::Vec3d rhs(0, 0, 0);
             samples.clear();
-            for (int dy = -radius; dy <= radius; ++dy) {
-              const int yy = y + dy;
-              if (yy < 0 || yy >= rows) continue;
-              for (int dx = -radius; dx <= radius; ++dx) {
-                const int xx = x + dx;
-                if (xx < 0 || xx >= cols || !mask_before.at<uint8_t>(yy, xx)) continue;
-                const double u = before.at<float>(yy, xx);
-                const cv::Vec3d basis(1.0, dx, dy);
-                normal += basis * basis.t();
-                rhs += basis * u;
-                samples.push_back(
-                    {static_cast<float>(dx), static_cast<float>(dy), static_cast<float>(u)});
-              }
-            }
+            for_each_decoded_neighbour(x, y, [&](int dx, int dy) {
+              const double u = before.at<float>(y + dy, x + dx);
+              const cv::Vec3d basis(1.0, dx, dy);
+              normal += basis * basis.t();
+              rhs += basis * u;
+              samples.push_back(
+                  {static_cast<float>(dx), static_cast<float>(dy), static_cast<float>(u)});
+            });
             if (static_cast<int>(samples.size()) < options.consistency.min_neighbours ||
                 cv::determinant(normal) < 1e-6) {
               ok = false;

@@ -261,6 +261,15 @@ TEST(PhaseRoundTrip, NoiseNotBiasLimitsThePerPixelCoordinate) {
   EXPECT_GE(figures[1][1].decoded_fraction, figures[1][0].decoded_fraction);
 }
 
+// The gamma tests' scene: a plane tilted across the small rig's view.
+Scene TiltedPlane() {
+  Scene scene;
+  Placement placement;
+  placement.rotation = RotationFromEulerXYZ(0.1, -0.2, 0.0);
+  scene.objects.push_back(PlaceObject(MakePlane(0.5, 0.4, 4), placement));
+  return scene;
+}
+
 // The gamma ripple: depth error against the finest x phase, its component at 4φ.
 // `rms` is the error's rms; the amplitude's standard error is rms·√(2/n) (`standard_error`).
 double RippleAmplitude(const GroundTruth& truth, const ScanResult& result, double period,
@@ -296,11 +305,7 @@ double RippleAmplitude(const GroundTruth& truth, const ScanResult& result, doubl
 TEST(PhaseRoundTrip, MeasuredResponseRemovesTheGammaRipple) {
   const RigCalibration calibration = testing::SmallRig();
   VirtualRig rig(calibration, PhaseSensor());
-  Scene scene;
-  Placement placement;
-  placement.rotation = RotationFromEulerXYZ(0.1, -0.2, 0.0);
-  scene.objects.push_back(PlaceObject(MakePlane(0.5, 0.4, 4), placement));
-  rig.SetScene(scene);
+  rig.SetScene(TiltedPlane());
   // x only, ray–plane: the depth error follows the x phase alone.
   PatternOptions patterns = PhasePatterns(calibration, kRipplePeriods);
   patterns.axes = PatternAxes::kX;
@@ -332,11 +337,7 @@ TEST(PhaseRoundTrip, MeasuredResponseRemovesTheGammaRipple) {
 TEST(PhaseRoundTrip, PredistortedPatternsNeedNoCorrection) {
   const RigCalibration calibration = testing::SmallRig();
   VirtualRig rig(calibration, PhaseSensor());
-  Scene scene;
-  Placement placement;
-  placement.rotation = RotationFromEulerXYZ(0.1, -0.2, 0.0);
-  scene.objects.push_back(PlaceObject(MakePlane(0.5, 0.4, 4), placement));
-  rig.SetScene(scene);
+  rig.SetScene(TiltedPlane());
   PatternOptions patterns = PhasePatterns(calibration, kRipplePeriods);
   patterns.axes = PatternAxes::kX;
   const ScanResult plain = ScanFrameSet(CaptureSequence(rig, patterns), calibration);
@@ -360,11 +361,7 @@ TEST(PhaseRoundTrip, PredistortedPatternsNeedNoCorrection) {
 TEST(PhaseRoundTrip, ResponseCorrectionIsHarmlessAtFinePeriods) {
   const RigCalibration calibration = testing::SmallRig();
   VirtualRig rig(calibration, PhaseSensor());
-  Scene scene;
-  Placement placement;
-  placement.rotation = RotationFromEulerXYZ(0.1, -0.2, 0.0);
-  scene.objects.push_back(PlaceObject(MakePlane(0.5, 0.4, 4), placement));
-  rig.SetScene(scene);
+  rig.SetScene(TiltedPlane());
   RigCalibration measured = calibration;
   measured.projector_response = MeasuredResponse();
   for (const std::vector<double>& periods :
