@@ -159,21 +159,18 @@ int RunEval(int argc, char** argv) {
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
 
-  // The scanned protocols' projector: the virtual rig's (periods are checked against it).
-  SOPE_CHECK(patterns_group->count_all() == 0 || options.through_scan || table,
-             "pattern flags (--code, --periods, ...) are for scanned queries (--scan-pipeline "
-             "or --table)");
+  if (patterns_group->count_all() > 0) {
+    SOPE_CHECK(options.through_scan || table,
+               "pattern flags (--code, --periods, ...) are for scanned queries (--scan-pipeline "
+               "or --table)");
+    // Checked on the scanned protocols' projector, the virtual rig's.
+    const CameraModel projector = DefaultRigCalibration().projector;
+    (table ? table_options.source.patterns : options.scan_patterns) =
+        pattern_flags.ToOptions(projector.width, projector.height);
+  }
   if (table) {
-    if (patterns_group->count_all() > 0) {
-      const CameraModel projector = DefaultRigCalibration().projector;
-      table_options.source.patterns = pattern_flags.ToOptions(projector.width, projector.height);
-    }
     return RunTableEval(db_path, recognition_flags, given, options, procedural, table_meshes,
                         table_options, out);
-  }
-  if (options.through_scan) {
-    options.scan_patterns = pattern_flags.ToOptions(options.scan_patterns.projector_width,
-                                                    options.scan_patterns.projector_height);
   }
   options.protocol = protocol_text.empty()
                          ? (models_dir.empty() ? EvalProtocol::kInstance : EvalProtocol::kClass)

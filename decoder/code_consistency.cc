@@ -175,16 +175,27 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
   }
   const int rows = map->height(), cols = map->width();
   const int radius = options.consistency.window_radius;
-  // White − black, or without them the largest bit margin.
-  const auto contrast_at = [&](int x, int y) {
-    if (white && black) return Grey(*white, x, y) - Grey(*black, x, y);
-    float contrast = 0.0f;
-    for (const AxisFrames& axis : axes) {
-      for (size_t k = 0; k < axis.pattern.size(); ++k)
-        contrast = std::max(contrast, std::abs(Margin(axis, k, white, black, x, y)));
+  // Per pixel, once (every pass reads it, for the pixel and its neighbours): white − black,
+  // or without them the largest bit margin.
+  cv::Mat contrast_image(rows, cols, CV_32FC1);
+  cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
+    for (int y = range.start; y < range.end; ++y) {
+      float* row = contrast_image.ptr<float>(y);
+      for (int x = 0; x < cols; ++x) {
+        if (white && black) {
+          row[x] = Grey(*white, x, y) - Grey(*black, x, y);
+          continue;
+        }
+        float contrast = 0.0f;
+        for (const AxisFrames& axis : axes) {
+          for (size_t k = 0; k < axis.pattern.size(); ++k)
+            contrast = std::max(contrast, std::abs(Margin(axis, k, white, black, x, y)));
+        }
+        row[x] = contrast;
+      }
     }
-    return contrast;
-  };
+  });
+  const auto contrast_at = [&](int x, int y) { return contrast_image.at<float>(y, x); };
   for (int pass = 0; pass < options.consistency.passes; ++pass) {
     // Decided from the map as it was before this pass (rows in parallel, no order effects).
     const cv::Mat mask_before = map->mask.clone();
