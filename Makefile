@@ -36,6 +36,7 @@ test: build
 
 # Heavy benchmark programs (not part of `make test` or CI).
 bench: build
+	cmake --build $(BUILD) -j$(JOBS) --target sope_benches
 	scripts/run-benchmarks.sh $(BUILD)
 
 # Every test under AddressSanitizer + UndefinedBehaviorSanitizer (no benchmarks).

@@ -92,18 +92,18 @@ Eigen::Vector2d ExactProjector(const RigCalibration& rig, const PlaneMaps& maps,
   return rig.projector.ImageFromCam(rig.proj_from_cam * point);
 }
 
-struct Errors {
+struct CornerErrors {
   double homography_rms = 0.0;
   double lookup_rms = 0.0;  // nearest decoded pixel, for comparison
   double homography_max = 0.0;
   int found = 0;
 };
 
-Errors Measure(const RigCalibration& rig, const PlaneMaps& maps, int half_window,
+CornerErrors Measure(const RigCalibration& rig, const PlaneMaps& maps, int half_window,
                const LocalHomographyOptions& options) {
   std::mt19937_64 engine(11);
   std::uniform_real_distribution<double> unit(0.0, 1.0);
-  Errors errors;
+  CornerErrors errors;
   double sum = 0.0, lookup_sum = 0.0;
   constexpr int kTrials = 60;
   for (int trial = 0; trial < kTrials; ++trial) {
@@ -130,7 +130,7 @@ Errors Measure(const RigCalibration& rig, const PlaneMaps& maps, int half_window
 TEST(LocalHomography, RecoversSubPixelProjectorCoordinatesFromQuantisedCodes) {
   const RigCalibration rig = TestRig();
   const PlaneMaps maps = MakePlaneMaps(rig, 0.0, 0.0);
-  const Errors errors = Measure(rig, maps, 20, {});
+  const CornerErrors errors = Measure(rig, maps, 20, {});
   std::printf("clean: local homography rms %.4f px (max %.4f), pixel lookup rms %.4f px\n",
               errors.homography_rms, errors.homography_max, errors.lookup_rms);
   EXPECT_EQ(errors.found, 60);
@@ -142,7 +142,7 @@ TEST(LocalHomography, RecoversSubPixelProjectorCoordinatesFromQuantisedCodes) {
 TEST(LocalHomography, IsRobustToWrongCodesAndHoles) {
   const RigCalibration rig = TestRig();
   const PlaneMaps maps = MakePlaneMaps(rig, 0.15, 0.2);
-  const Errors errors = Measure(rig, maps, 20, {});
+  const CornerErrors errors = Measure(rig, maps, 20, {});
   std::printf("15%% wrong codes, 20%% holes: rms %.4f px (max %.4f)\n", errors.homography_rms,
               errors.homography_max);
   EXPECT_EQ(errors.found, 60);

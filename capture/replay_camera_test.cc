@@ -16,14 +16,7 @@ namespace {
 
 using ::testing::HasSubstr;
 
-std::string ErrorOf(const std::function<void()>& action) {
-  try {
-    action();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
+using testing::ErrorOf;
 
 // A small recorded set: frame i is filled with 10·i.
 FrameSet SmallSet(PatternOptions* options_out = nullptr) {

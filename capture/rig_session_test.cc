@@ -122,14 +122,7 @@ double WorstMismatch(const FrameSet& frames, const std::vector<Pattern>& pattern
   return worst;
 }
 
-std::string ErrorOf(const std::function<void()>& action) {
-  try {
-    action();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
+using testing::ErrorOf;
 
 // Nothing at `path`, and no staging directory left beside it.
 void ExpectNothingWritten(const std::string& path) {

@@ -13,6 +13,7 @@
 
 #include "capture/v4l2_internal.h"
 #include "core/error.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace internal {
@@ -198,14 +199,7 @@ Rig Open(FakeDevice::Config config, CameraOptions options = {}) {
   return {view, MakeV4l2Camera(std::move(device), "/dev/video7", options)};
 }
 
-std::string ErrorOf(const std::function<void()>& action) {
-  try {
-    action();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
+using testing::ErrorOf;
 
 TEST(V4l2Camera, NegotiatesTheFormatAndStreams) {
   Rig rig = Open({});

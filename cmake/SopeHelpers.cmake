@@ -15,6 +15,8 @@ endfunction()
 #   -DSOPE_CTEST_PER_CASE=ON (every binary, e.g. to `ctest -R` one test) makes each TEST
 #   its own entry instead, discovered before test time so the build does not run them.
 #   SANITIZER_ENV: VAR=value settings for the test's run in a sanitizer build only.
+set(SOPE_TEST_OPTIMIZATION -O1 CACHE STRING
+    "Optimisation flag of the test files (empty: the build type's)")
 option(SOPE_CTEST_PER_CASE "One CTest entry per GoogleTest case (default: per binary)" OFF)
 # Sanitizer builds run 3-10x slower (calibrate_e2e_test's cases ~9 min each under ASan on an
 # idle 2-core machine), so their timeouts are scaled; the limits catch hangs, not slowness.
@@ -31,6 +33,21 @@ function(sope_add_test)
   add_executable(${ARG_NAME} ${ARG_SRCS})
   target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} sope_test_support GTest::gtest
                         GTest::gtest_main)
+  # Test files are mostly GoogleTest macros and set-up; the work they time is in the
+  # libraries, which keep the build type's optimisation. -O1 compiles them in ~2/3 of
+  # -O3's time (README "Build and test time"); a test binary's several files compile as
+  # one (unity build), so their common headers are parsed once.
+  if(SOPE_TEST_OPTIMIZATION)
+    # (GCC 12 at -O1 reports Eigen's AVX-512 packets, _mm512_undefined_pd in
+    # avx512fintrin.h, as uninitialised: a false positive that floods the log.)
+    target_compile_options(${ARG_NAME} PRIVATE ${SOPE_TEST_OPTIMIZATION}
+                           $<$<CXX_COMPILER_ID:GNU>:-Wno-uninitialized>
+                           $<$<CXX_COMPILER_ID:GNU>:-Wno-maybe-uninitialized>)
+  endif()
+  list(LENGTH ARG_SRCS source_count)
+  if(source_count GREATER 1)
+    set_target_properties(${ARG_NAME} PROPERTIES UNITY_BUILD ON UNITY_BUILD_BATCH_SIZE 0)
+  endif()
   if(ARG_PER_CASE OR SOPE_CTEST_PER_CASE)
     # COST: with no timings from an earlier run, ctest starts the costliest first, so these
     # long cases do not trail at the end of a parallel run.
@@ -65,13 +82,20 @@ function(sope_add_test)
 endfunction()
 
 # sope_add_bench(NAME name SRCS ... [DEPS ...])
-#   A Google Benchmark program with bench/bench_support.cc (logs on stderr; the reporter
+#   A Google Benchmark program, built by the sope_benches target only with bench/bench_support.cc (logs on stderr; the reporter
 #   --benchmark_format asks for, alone on stdout).
 function(sope_add_bench)
   if(NOT SOPE_BUILD_BENCH)
     return()
   endif()
   cmake_parse_arguments(ARG "" "NAME" "SRCS;DEPS" ${ARGN})
-  add_executable(${ARG_NAME} ${ARG_SRCS} ${PROJECT_SOURCE_DIR}/bench/bench_support.cc)
+  # Not part of the default build (`make test`, `make demo`): `make bench` builds them
+  # through the sope_benches target (README "Build and test time").
+  add_executable(${ARG_NAME} EXCLUDE_FROM_ALL ${ARG_SRCS}
+                 ${PROJECT_SOURCE_DIR}/bench/bench_support.cc)
   target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} benchmark::benchmark spdlog::spdlog)
+  if(NOT TARGET sope_benches)
+    add_custom_target(sope_benches)
+  endif()
+  add_dependencies(sope_benches ${ARG_NAME})
 endfunction()

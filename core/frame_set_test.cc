@@ -50,14 +50,7 @@ FrameSet SmallSet() {
   return set;
 }
 
-std::string ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
+using testing::ErrorOf;
 
 TEST(FrameSet, ManifestRoundTrip) {
   const FrameSetManifest manifest = SmallManifest();
@@ -107,7 +100,7 @@ TEST(FrameSet, MalformedManifestsGiveClearErrors) {
   EXPECT_NE(ErrorOf([&] { parse(j); }).find("listed twice"), std::string::npos);
   j = good;
   j["frames"].erase(2);  // bit 1 pattern missing, its inverse orphaned
-  EXPECT_FALSE(ErrorOf([&] { parse(j); }).empty());
+  EXPECT_NE(ErrorOf([&] { parse(j); }), "(no error)");
   j = good;
   j["projector"]["width"] = 5;  // 2 bits cannot code 5 columns
   EXPECT_NE(ErrorOf([&] { parse(j); }).find("cannot code"), std::string::npos);
@@ -192,7 +185,7 @@ TEST(FrameSet, BadPhaseSetsGiveClearErrors) {
   using nlohmann::json;
   const json good = json::parse(SerializeFrameSetManifest(PhaseManifest()));
   auto parse = [](const json& j) { ParseFrameSetManifest(j.dump(), "m.json"); };
-  ASSERT_TRUE(ErrorOf([&] { parse(good); }).empty());
+  ASSERT_EQ(ErrorOf([&] { parse(good); }), "(no error)");
   json j = good;
   j["frames"][1]["shift"] = 2.0 * 3.14159265358979323846;  // = shift 0 modulo 2π
   EXPECT_NE(ErrorOf([&] { parse(j); }).find("phase group of period 64: 2 distinct shifts"),
@@ -261,15 +254,15 @@ TEST(FrameSet, GrayPlusPhaseMustFitTogether) {
     AddPhaseGroup(PatternAxis::kX, period, {0.0, 2.0944, 4.18879}, &manifest);
     return manifest;
   };
-  EXPECT_TRUE(ErrorOf([&] { make(3, 8.0).Check(); }).empty());
-  EXPECT_TRUE(ErrorOf([&] { make(3, 16.0).Check(); }).empty());
+  EXPECT_EQ(ErrorOf([&] { make(3, 8.0).Check(); }), "(no error)");
+  EXPECT_EQ(ErrorOf([&] { make(3, 16.0).Check(); }), "(no error)");
   EXPECT_NE(ErrorOf([&] { make(3, 12.0).Check(); })
                 .find("axis x: the Gray code's finest stripe is 8 px but the coarsest phase "
                       "period is 12 px"),
             std::string::npos)
       << ErrorOf([&] { make(3, 12.0).Check(); });
-  EXPECT_FALSE(ErrorOf([&] { make(3, 32.0).Check(); }).empty());
-  EXPECT_FALSE(ErrorOf([&] { make(4, 8.0).Check(); }).empty());
+  EXPECT_NE(ErrorOf([&] { make(3, 32.0).Check(); }), "(no error)");
+  EXPECT_NE(ErrorOf([&] { make(4, 8.0).Check(); }), "(no error)");
   FrameSetManifest binary = make(3, 8.0);
   for (FrameInfo& frame : binary.frames) frame.code = PatternCode::kBinary;
   EXPECT_NE(ErrorOf([&] { binary.Check(); }).find("combined with a Gray code only"),

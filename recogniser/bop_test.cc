@@ -84,7 +84,7 @@ TEST(BopCsv, MalformedFilesAreRefused) {
   const std::string header = "scene_id,im_id,obj_id,score,R,t,time\n";
   const std::string good = "1,2,3,0.5,1 0 0 0 1 0 0 0 1,0 0 500,0.1\n";
   EXPECT_NO_THROW(ParseBopCsv(header + good, "ok.csv"));
-  for (const std::string bad :
+  for (const std::string& bad :
        {std::string("scene_id,im_id,obj_id,score,R,t\n") + good,
         header + "1,2,3,0.5,1 0 0 0 1 0 0 0 1,0 0 500\n",
         header + "1,2,3,0.5,1 0 0 0 1 0 0 0,0 0 500,0.1\n",

@@ -9,18 +9,12 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "tests/test_support.h"
+#include "recogniser/random_codes_testing.h"
 
 namespace sope {
 namespace {
 
-BinaryCodes RandomCodes(int bits, int64_t n, uint64_t seed) {
-  BinaryCodes codes(bits, n);
-  std::mt19937_64 random(seed);
-  for (int64_t i = 0; i < n; ++i) {
-    for (int bit = 0; bit < bits; ++bit) codes.SetBit(i, bit, (random() & 1) != 0);
-  }
-  return codes;
-}
+using testing::RandomCodes;
 
 class FaissCoarse : public ::testing::TestWithParam<int> {};
 

@@ -8,18 +8,12 @@
 
 #include "core/error.h"
 #include "tests/test_support.h"
+#include "recogniser/random_codes_testing.h"
 
 namespace sope {
 namespace {
 
-BinaryCodes RandomCodes(int bits, int64_t count, uint64_t seed) {
-  std::mt19937_64 rng(seed);
-  BinaryCodes codes(bits, count);
-  for (int64_t i = 0; i < count; ++i) {
-    for (int b = 0; b < bits; ++b) codes.SetBit(i, b, rng() & 1u);
-  }
-  return codes;
-}
+using testing::RandomCodes;
 
 // Codes at a controlled distance from `query`: code i flips the first d_i bits, so
 // distances can be forced (descending, all equal, ...).

@@ -13,6 +13,7 @@
 #include "core/units.h"
 #include "recogniser/hamming_search.h"
 #include "tests/test_support.h"
+#include "recogniser/random_codes_testing.h"
 
 namespace sope {
 namespace {
@@ -94,14 +95,7 @@ std::pair<double, double> BitImbalance(const BinaryCodes& codes) {
   return {mean, worst};
 }
 
-BinaryCodes RandomCodes(int bits, int64_t count, uint64_t seed) {
-  std::mt19937_64 rng(seed);
-  BinaryCodes codes(bits, count);
-  for (int64_t i = 0; i < count; ++i) {
-    for (int b = 0; b < bits; ++b) codes.SetBit(i, b, rng() & 1u);
-  }
-  return codes;
-}
+using testing::RandomCodes;
 
 // 20 clusters in 64-D (σ = 0.7, so clusters are separated but their members' neighbour
 // order is noisy), 4000 database rows, 200 held-out queries, 50 true neighbours each;

@@ -301,6 +301,9 @@ struct ClassScore {
   double probability = 0.0;   // softmax of the combined evidence over the classes
   double verification = 0.0;  // mean verification score of its best refined models (0: none)
   double vote = 0.0;          // class-balanced vote share of the fine ranking, in [0, 1]
+  // The best refined model's verification parts (AlignmentScore; 0 without one): model fit,
+  // query coverage, and the RMS distance of its fitting points (metres).
+  double fit = 0.0, coverage = 0.0, rms = 0.0;
 };
 
 struct RecognitionResult {

@@ -272,7 +272,9 @@ TEST_F(RecogniserTest, StagesCalledAloneMatchRecognise) {
       max_flagged_distance = std::max(max_flagged_distance, m.hamming_distance);
     }
     for (int v = 0; v < db_->num_views(); ++v) {
-      if (!is_flagged[v]) EXPECT_GE(context.HammingTo(v), max_flagged_distance) << v;
+      if (!is_flagged[v]) {
+        EXPECT_GE(context.HammingTo(v), max_flagged_distance) << v;
+      }
     }
 
     // Fine: the flagged views, sorted by their combined distance, ranks in order.
@@ -284,7 +286,9 @@ TEST_F(RecogniserTest, StagesCalledAloneMatchRecognise) {
       const RankedView measured =
           context.Measure(fine.ranked[i].view, fine.ranked[i].hamming, options.fine);
       EXPECT_EQ(measured.combined, fine.ranked[i].combined);
-      if (i > 0) EXPECT_FALSE(RankedBefore(fine.ranked[i], fine.ranked[i - 1]));
+      if (i > 0) {
+        EXPECT_FALSE(RankedBefore(fine.ranked[i], fine.ranked[i - 1]));
+      }
     }
 
     // Screening: hypotheses of the planned models only, best score first.
@@ -296,7 +300,9 @@ TEST_F(RecogniserTest, StagesCalledAloneMatchRecognise) {
       EXPECT_NE(std::find(plan.models.begin(), plan.models.end(), screened[i].model),
                 plan.models.end());
       EXPECT_FALSE(screened[i].refined);
-      if (i > 0) EXPECT_GE(screened[i - 1].alignment.score, screened[i].alignment.score);
+      if (i > 0) {
+        EXPECT_GE(screened[i - 1].alignment.score, screened[i].alignment.score);
+      }
     }
     const RefinementResult refined =
         RefinePoses(&context, screened, options.refinement.candidates, options);
@@ -481,7 +487,9 @@ TEST_F(ClassRankingTest, VoteOfTheFineRankingIsClassBalanced) {
   for (size_t i = 0; i < scores.size(); ++i) {
     EXPECT_NEAR(scores[i].vote, expected[scores[i].class_index] / total, 1e-12);
     EXPECT_EQ(scores[i].verification, 0.0);
-    if (i > 0) EXPECT_GE(scores[i - 1].probability, scores[i].probability);
+    if (i > 0) {
+      EXPECT_GE(scores[i - 1].probability, scores[i].probability);
+    }
     probability_sum += scores[i].probability;
   }
   EXPECT_NEAR(probability_sum, 1.0, 1e-12);

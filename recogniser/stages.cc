@@ -559,24 +559,28 @@ std::vector<ClassScore> ScoreClasses(const StageContext& context, const FineResu
   }
   // Verification: the best refined score of each model, then per class the mean of its
   // best class_models models (a class with fewer refined models counts the missing as 0).
-  std::unordered_map<int, double> model_best;
+  std::unordered_map<int, const AlignmentScore*> model_best;
   for (const PoseCandidate& candidate : posed) {
     if (!candidate.refined) continue;
-    double& best = model_best.emplace(candidate.model, 0.0).first->second;
-    best = std::max(best, candidate.alignment.score);
+    const AlignmentScore*& best = model_best.emplace(candidate.model, nullptr).first->second;
+    if (best == nullptr || candidate.alignment.score > best->score) best = &candidate.alignment;
   }
-  std::vector<std::vector<double>> class_models(num_classes);
-  for (const auto& [model, score] : model_best) {
-    class_models[db.model(model).class_index].push_back(score);
+  std::vector<std::vector<const AlignmentScore*>> class_models(num_classes);
+  for (const auto& [model, alignment] : model_best) {
+    class_models[db.model(model).class_index].push_back(alignment);
   }
   for (int c = 0; c < num_classes; ++c) {
-    std::vector<double>& models = class_models[c];
+    std::vector<const AlignmentScore*>& models = class_models[c];
     if (models.empty()) continue;
-    std::sort(models.begin(), models.end(), std::greater<double>());
+    std::sort(models.begin(), models.end(),
+              [](const AlignmentScore* a, const AlignmentScore* b) { return a->score > b->score; });
     const int n = std::max(1, options.class_models);
     double sum = 0.0;
-    for (int i = 0; i < n && i < static_cast<int>(models.size()); ++i) sum += models[i];
+    for (int i = 0; i < n && i < static_cast<int>(models.size()); ++i) sum += models[i]->score;
     scores[c].verification = sum / n;
+    scores[c].fit = models[0]->model_fit;
+    scores[c].coverage = models[0]->query_coverage;
+    scores[c].rms = models[0]->rms;
     evidence[c] = 1;
   }
   // Class-balanced vote of the first fine-ranked views.

@@ -28,14 +28,7 @@ Scene WallScene() {
   return scene;
 }
 
-std::string ErrorOf(const std::function<void()>& action) {
-  try {
-    action();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "(no error)";
-}
+using testing::ErrorOf;
 
 cv::Mat Uniform(const VirtualDisplay& display, int level) {
   return cv::Mat(display.height(), display.width(), CV_8UC1, cv::Scalar(level));

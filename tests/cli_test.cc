@@ -498,7 +498,9 @@ TEST_F(Cli, ObjectsContactSheets) {
     }
     EXPECT_GT(object, 3 * 320 * 640 / 20);
     // The box is no lathe object: it has no profile to draw.
-    if (std::string(name) != "box") EXPECT_GT(silhouette, 320 * 640 / 50);
+    if (std::string(name) != "box") {
+      EXPECT_GT(silhouette, 320 * 640 / 50);
+    }
   }
   const std::string overview = dir + "/overview.png";
   ASSERT_TRUE(fs::is_regular_file(overview));

@@ -1,5 +1,7 @@
 #include "tests/test_support.h"
 
+#include "core/error.h"
+
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -59,6 +61,15 @@ RigCalibration SmallRig() {
   rig.proj_from_cam.rotation = RotationFromEulerXYZ(0, -angle, 0).transpose();
   rig.proj_from_cam.translation = -(rig.proj_from_cam.rotation * Eigen::Vector3d(0.15, 0, 0));
   return rig;
+}
+
+std::string ErrorOf(const std::function<void()>& action) {
+  try {
+    action();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "(no error)";
 }
 
 std::string Quote(const std::string& text) { return "'" + text + "'"; }

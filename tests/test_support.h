@@ -45,6 +45,10 @@ struct CommandRun {
   std::string out;
   std::string err;
 };
+// The message of the sope::Error that `action` throws, or "(no error)" when it throws none
+// (for EXPECT_THAT(ErrorOf(...), HasSubstr(...)); other exception types propagate).
+std::string ErrorOf(const std::function<void()>& action);
+
 // Single-quoted for the shell.
 std::string Quote(const std::string& text);
 // Runs `prefix binary arguments` through the shell, stdout and stderr captured in files of

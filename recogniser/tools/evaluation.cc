@@ -763,7 +763,10 @@ std::string EvalReport::ToJson() const {
       classes.push_back({{"class", c.class_name},
                          {"probability", c.probability},
                          {"verification", c.verification},
-                         {"vote", c.vote}});
+                         {"vote", c.vote},
+                         {"fit", c.fit},
+                         {"coverage", c.coverage},
+                         {"rms_mm", 1e3 * c.rms}});
     }
     q["classes"] = std::move(classes);
     nlohmann::json suggested = nlohmann::json::array();
