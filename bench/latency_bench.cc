@@ -150,12 +150,15 @@ struct LatencySamples {
   }
 };
 
-void RunLatency(benchmark::State& state, bool thesis) {
+// `widen_batch` ≥ 0 overrides WideningOptions::batch_models (0: the widened search in one
+// batch, as before issue 14's early stop).
+void RunLatency(benchmark::State& state, bool thesis, int widen_batch = -1) {
   const Input& input = GetInput();
   const Database& db = thesis ? *input.thesis_db : *input.sope_db;
   const Recogniser recogniser(db);
-  const RecognitionOptions options =
+  RecognitionOptions options =
       thesis ? RecognitionOptions::ThesisPreset(db.options().hash.method) : RecognitionOptions();
+  if (widen_batch >= 0) options.widening.batch_models = widen_batch;
   LatencySamples samples;
   size_t k = 0;
   for (auto _ : state) {
@@ -171,7 +174,11 @@ void RunLatency(benchmark::State& state, bool thesis) {
   }
   samples.Report(state);
   state.counters["recognise_ratio"] = Quantile(samples.recognise, 0.5) / kThesisMs;
-  state.SetLabel(thesis ? "thesis database + ThesisPreset" : "sope database + defaults");
+  state.SetLabel(thesis            ? "thesis database + ThesisPreset"
+                 : widen_batch >= 0 ? fmt::format("sope database + defaults, widening "
+                                                  "batch_models {}",
+                                                  widen_batch)
+                                    : "sope database + defaults");
 }
 
 // The live loop as ScanAndRecogniseController runs it for a capturing source: every frame
@@ -217,9 +224,15 @@ void BM_FrameToResult_Overlapped(benchmark::State& state) {
 
 void BM_FrameToResult_Sope(benchmark::State& state) { RunLatency(state, false); }
 void BM_FrameToResult_Thesis(benchmark::State& state) { RunLatency(state, true); }
+// The widened pose search in one batch (no early stop): the p95 before issue 14's step.
+void BM_FrameToResult_SopeWidenAtOnce(benchmark::State& state) { RunLatency(state, false, 0); }
 // 5 passes over the 8 scans: enough samples for a p95.
 BENCHMARK(BM_FrameToResult_Sope)->Iterations(5 * kScans)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_FrameToResult_Thesis)->Iterations(5 * kScans)->UseManualTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_FrameToResult_SopeWidenAtOnce)
+    ->Iterations(5 * kScans)
+    ->UseManualTime()
+    ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_FrameToResult_Overlapped)
     ->Arg(1)
     ->Arg(2)

@@ -156,7 +156,11 @@ const std::vector<OptionField<WideningOptions>>& WideningOptions::Fields() {
       Field(&O::roll_hypotheses, "roll_hypotheses", "Roll hypotheses per view when widened")
           .AtLeast(1),
       Field(&O::refine_candidates, "refine_candidates", "Models refined when widened")
-          .AtLeast(0)};
+          .AtLeast(0),
+      Field(&O::batch_models, "batch_models",
+            "Widened models screened per batch; stop after a batch that verifies (0: all)")
+          .AtLeast(0)
+          .Flag("--widen-batch")};
   return fields;
 }
 void WideningOptions::Check() const { CheckFields(*this, Fields(), "recognition: widening."); }

@@ -161,6 +161,11 @@ struct WideningOptions {
   int views_per_model = 8;
   int roll_hypotheses = 3;
   int refine_candidates = 6;
+  // The widened models are screened batch_models at a time (in the order of their best
+  // views), each batch's best hypotheses refined (its share of refine_candidates), and the
+  // search stops after a batch whose refined hypotheses reach below_score. 0: all models at
+  // once, refine_candidates of them refined.
+  int batch_models = 0;
   static const std::vector<OptionField<WideningOptions>>& Fields();
   void Check() const;
 };

@@ -471,8 +471,26 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
   request.hypotheses.roll_hypotheses =
       std::min(std::max(options.pose.roll_hypotheses, widening.roll_hypotheses),
                options.pose.angle_bins / 2);
-  std::vector<PoseCandidate> wide = ScreenPoses(context, fine, request, options);
-  return RefinePoses(context, std::move(wide), widening.refine_candidates, options).candidates;
+  // In batches of batch_models models, in the order of their best views: each batch's
+  // best hypotheses refined (its share of refine_candidates), and no further batch once
+  // one of them verifies as the right model at the right pose would.
+  const int num_models = static_cast<int>(request.models.size());
+  const int batch = widening.batch_models > 0 ? std::min(widening.batch_models, num_models)
+                                              : num_models;
+  const int refine_per_batch =
+      std::max(1, (widening.refine_candidates * batch + num_models - 1) / std::max(1, num_models));
+  std::vector<PoseCandidate> wide;
+  ScreeningRequest part = request;
+  for (int first = 0; first < num_models; first += batch) {
+    part.models.assign(request.models.begin() + first,
+                       request.models.begin() + std::min(num_models, first + batch));
+    RefinementResult refined = RefinePoses(
+        context, ScreenPoses(context, fine, part, options),
+        std::min(refine_per_batch, widening.refine_candidates), options);
+    for (PoseCandidate& candidate : refined.candidates) wide.push_back(std::move(candidate));
+    if (refined.best_score >= widening.below_score) break;
+  }
+  return wide;
 }
 
 std::vector<PoseCandidate> EstimatePoses(StageContext* context, const FineResult& fine,
