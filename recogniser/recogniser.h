@@ -164,8 +164,10 @@ struct WideningOptions {
   // The widened models are screened batch_models at a time (in the order of their best
   // views), each batch's best hypotheses refined (its share of refine_candidates), and the
   // search stops after a batch whose refined hypotheses reach below_score. 0: all models at
-  // once, refine_candidates of them refined.
-  int batch_models = 0;
+  // once, refine_candidates of them refined. Instance protocol (190 queries, up to 25%
+  // hidden): model top-1 99.5% and pose errors unchanged from 0; p95 CPU time per query
+  // 27.6–31.5 → 19.5–22 ms for 2–6 (median unchanged).
+  int batch_models = 4;
   static const std::vector<OptionField<WideningOptions>>& Fields();
   void Check() const;
 };

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <limits>
 #include <random>
+#include <set>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -334,6 +335,53 @@ TEST_F(RecogniserTest, StagesCalledAloneMatchRecognise) {
 // Issue 13: a cloud of no known object (uniform noise, a line of points) is answered "no
 // known object" — JSON class null, the best guess only among the candidates — while real
 // views of the database's objects stay recognised.
+// The widened pose search in batches (WideningOptions::batch_models): while no batch
+// verifies, it screens every widened model, as the search at once does, and refines each
+// batch's share; once a batch's refined hypotheses reach below_score it stops there.
+TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
+  const auto models_of = [](const std::vector<PoseCandidate>& candidates, bool refined_only) {
+    std::set<int> models;
+    for (const PoseCandidate& c : candidates) {
+      if (c.refined || !refined_only) models.insert(c.model);
+    }
+    return models;
+  };
+  for (const Query& q : MakeQueries(2, 57)) {
+    const ViewDescription query = DescribeQuery(*db_, q.query.cloud);
+    RecognitionOptions options;
+    const CoarseResult coarse = CoarseStage(*db_, query, options);
+    StageContext context(*db_, query, coarse);
+    const FineResult fine = FineStage(&context, options);
+    // Never verifying (a threshold above any score): every batch runs.
+    options.widening.below_score = 1.5;
+    options.widening.batch_models = 0;
+    const std::vector<PoseCandidate> at_once = WidenSearch(&context, fine, 0.0, 4, options);
+    options.widening.batch_models = 3;
+    const std::vector<PoseCandidate> batched = WidenSearch(&context, fine, 0.0, 4, options);
+    const std::set<int> screened = models_of(at_once, false);
+    EXPECT_EQ(static_cast<int>(screened.size()),
+              std::min(options.widening.models, db_->num_models()));
+    EXPECT_EQ(models_of(batched, false), screened);
+    EXPECT_EQ(models_of(at_once, true).size(),
+              std::min<size_t>(options.widening.refine_candidates, screened.size()));
+    // Batches of 3 models with ⌈6 · 3 / 8⌉ = 3 refinements each: every model refined.
+    EXPECT_EQ(models_of(batched, true), screened);
+    // A threshold the first batch's refined hypotheses reach: that batch alone.
+    options.widening.below_score = 0.05;
+    const std::vector<PoseCandidate> first = WidenSearch(&context, fine, 0.0, 4, options);
+    const std::set<int> first_models = models_of(first, false);
+    EXPECT_GE(first_models.size(), 1u);
+    EXPECT_LE(first_models.size(), 3u);
+    EXPECT_TRUE(std::includes(screened.begin(), screened.end(), first_models.begin(),
+                              first_models.end()));
+    double best = 0.0;
+    for (const PoseCandidate& c : first) {
+      if (c.refined) best = std::max(best, c.alignment.score);
+    }
+    EXPECT_GE(best, 0.05);
+  }
+}
+
 TEST_F(RecogniserTest, NoKnownObjectBelowTheVerificationThreshold) {
   const Recogniser recogniser(*db_);
   std::mt19937_64 rng(13);
