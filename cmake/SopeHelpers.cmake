@@ -82,8 +82,9 @@ function(sope_add_test)
 endfunction()
 
 # sope_add_bench(NAME name SRCS ... [DEPS ...])
-#   A Google Benchmark program, built by the sope_benches target only with bench/bench_support.cc (logs on stderr; the reporter
-#   --benchmark_format asks for, alone on stdout).
+#   A Google Benchmark program with bench/bench_support.cc (logs on stderr; the reporter
+#   --benchmark_format asks for, alone on stdout), built only through the sope_benches
+#   target (`make bench`), not by the default build.
 function(sope_add_bench)
   if(NOT SOPE_BUILD_BENCH)
     return()
