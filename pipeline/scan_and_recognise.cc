@@ -374,7 +374,8 @@ std::string ScanReportToJson(const ScanReport& report) {
   if (report.scene) {
     // Tabletop: every object (DESIGN.md "objects"), the unknown ones, the table.
     const nlohmann::json scene = nlohmann::json::parse(SceneRecognitionResultToJson(*report.scene));
-    for (const char* key : {"objects", "unknown", "table", "clusters", "hypotheses", "scene_ms"}) {
+    for (const char* key : {"objects", "unknown", "table", "clusters", "background", "hypotheses",
+                            "scene_ms"}) {
       j[key] = scene[key];
     }
     for (size_t k = 0; k < report.files.object_clouds.size() && k < j["objects"].size(); ++k) {

@@ -6,14 +6,18 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <unordered_map>
 
+#include <Eigen/Eigenvalues>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
 #include "core/error.h"
 #include "core/stopwatch.h"
+#include "recogniser/pose.h"
+#include "recogniser/preprocess.h"
 
 namespace sope {
 namespace {
@@ -59,6 +63,7 @@ struct Hypothesis {
   RecognitionResult recognition;  // the suggestion in front
   double snap = 0.0;
   bool flipped = false;
+  bool twin = false;  // a half-turn twin of another hypothesis, refined on its cluster
 };
 
 // Height of the model's surface centroid above the plane over the model's diameter (the
@@ -80,6 +85,38 @@ double ClassProbability(const RecognitionResult& recognition, int class_index) {
   return 0.0;
 }
 
+// True when `cluster` is one plane (backdrop_planar_fraction of its points within
+// backdrop_plane_distance of its least-squares plane) longer than backdrop_extent_factor ×
+// `max_diameter` along its major axis: a wall or backdrop, not an object on the table.
+bool IsBackdrop(const ObjectCluster& cluster, double max_diameter,
+                const SceneRecognitionOptions& options) {
+  if (options.backdrop_planar_fraction <= 0 || cluster.cloud.size() < 3) return false;
+  const std::vector<Eigen::Vector3f>& points = cluster.cloud.points;
+  const size_t step = std::max<size_t>(1, points.size() / 5000);  // an even subsample
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  size_t n = 0;
+  for (size_t i = 0; i < points.size(); i += step, ++n) mean += points[i].cast<double>();
+  mean /= static_cast<double>(n);
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+  for (size_t i = 0; i < points.size(); i += step) {
+    const Eigen::Vector3d d = points[i].cast<double>() - mean;
+    covariance += d * d.transpose();
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
+  const Eigen::Vector3d normal = solver.eigenvectors().col(0);
+  const Eigen::Vector3d major = solver.eigenvectors().col(2);
+  double low = std::numeric_limits<double>::max(), high = -low;
+  size_t on_plane = 0;
+  for (size_t i = 0; i < points.size(); i += step) {
+    const Eigen::Vector3d d = points[i].cast<double>() - mean;
+    low = std::min(low, d.dot(major));
+    high = std::max(high, d.dot(major));
+    on_plane += std::abs(d.dot(normal)) <= options.backdrop_plane_distance;
+  }
+  return high - low > options.backdrop_extent_factor * max_diameter &&
+         static_cast<double>(on_plane) >= options.backdrop_planar_fraction * n;
+}
+
 // What every step of one scene recognition reads: the inputs, the segmentation's plane and
 // clusters, the thinned scene, and the recogniser's parts.
 struct SceneContext {
@@ -97,6 +134,10 @@ struct SceneContext {
 struct HypothesisPool {
   std::vector<Hypothesis> hypotheses;
   std::vector<RecognitionResult> cluster_results;  // per cluster
+  // Second looks taken: per cluster (remainder, twins, split) and per joined pair (a
+  // cluster and another cluster, or num_clusters + the accepted hypothesis it joined).
+  std::vector<uint8_t> remainder_tried, twins_tried, split_tried;
+  std::set<std::pair<int, int>> joined;
   double recognise_ms = 0.0;
   double verify_ms = 0.0;
 };
@@ -210,6 +251,243 @@ void AddClusterHypotheses(const SceneContext& ctx, int cluster, const PointCloud
   }
 }
 
+// The cluster's points as the recogniser's pose stages see them (pre-processed with the
+// database's options, canonical frame, projective grid); empty when too few points survive.
+std::optional<PoseQuery> ClusterPoseQuery(const SceneContext& ctx, const PointCloud& points) {
+  const PreprocessOptions& preprocess = ctx.database.options().preprocess;
+  try {
+    const PreprocessedCloud pre = Preprocess(points, preprocess);
+    const float spacing =
+        static_cast<float>(preprocess.voxel_leaf > 0.0 ? preprocess.voxel_leaf : 0.004);
+    return MakePoseQuery(pre.cloud, pre.centroid, pre.radius, spacing,
+                         ctx.options.recognition.pose);
+  } catch (const Error&) {
+    return std::nullopt;
+  }
+}
+
+// Principal axes of a model surface sample (model frame, columns, largest spread first).
+Eigen::Matrix3d PrincipalAxes(const PointCloud& surface) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3f& p : surface.points) mean += p.cast<double>();
+  mean /= std::max<size_t>(1, surface.size());
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+  for (const Eigen::Vector3f& p : surface.points) {
+    const Eigen::Vector3d d = p.cast<double>() - mean;
+    covariance += d * d.transpose();
+  }
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
+  return solver.eigenvectors().rowwise().reverse();
+}
+
+// Twins of a cluster nothing explained: each of its first hypotheses turned half a turn
+// about each principal axis of its model (through the model's centre) — the poses a
+// view-based search confuses most (a drill on its side seen from its other side, a box
+// end for end) — ICP-refined on the cluster's points and put down on the table. Adds
+// them to the pool; false when it added none.
+bool AddTwinHypotheses(const SceneContext& ctx, int cluster, const PointCloud& points,
+                       const std::vector<int>& sources, HypothesisPool* pool) {
+  if (sources.empty()) return false;
+  const Stopwatch watch;
+  const std::optional<PoseQuery> query = ClusterPoseQuery(ctx, points);
+  if (!query) return false;
+  const Rigid3d cam_from_canonical(query->cam_from_canonical, Eigen::Vector3d::Zero());
+  const Rigid3d canonical_from_cam = cam_from_canonical.Inverse();
+  const PoseOptions& pose_options = ctx.options.recognition.pose;
+  const bool on_table = ctx.options.snap_to_plane && ctx.plane.found;
+  bool added = false;
+  for (const int source : sources) {
+    const Hypothesis h = pool->hypotheses[source];  // a copy: the pool grows below
+    const Suggestion& s = h.recognition.suggestions[0];
+    const PointCloud& surface = ctx.scene_recogniser.ModelSurface(s.model, ctx.options.model_leaf);
+    const Eigen::Vector3d centre = ctx.database.model(s.model).center;
+    const Eigen::Matrix3d axes = PrincipalAxes(surface);
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Matrix3d turn = Eigen::AngleAxisd(M_PI, axes.col(k)).toRotationMatrix();
+      const Rigid3d model_turn(turn, centre - turn * centre);
+      const IcpResult icp = RefinePose(surface.points, surface.normals, *query,
+                                       canonical_from_cam * s.cam_from_model * model_turn,
+                                       pose_options);
+      Hypothesis twin = h;
+      twin.twin = true;
+      twin.flipped = false;
+      twin.snap = 0.0;
+      Suggestion& front = twin.recognition.suggestions[0];
+      front.cam_from_model = cam_from_canonical * icp.canonical_from_model;
+      front.icp_iterations = icp.iterations;
+      front.icp_rms = icp.rms;
+      if (on_table && !SnapToTable(ctx, &twin)) continue;
+      pool->hypotheses.push_back(std::move(twin));
+      added = true;
+    }
+  }
+  pool->recognise_ms += watch.WallMs();
+  return added;
+}
+
+// Pairs of labels (a < b) some of whose thinned points lie within `distance` of each
+// other (a hash grid of cells `distance` wide: each point meets the points of its 27
+// cells). `label` per thinned point, in [0, num_labels) or −1 (left out).
+std::vector<std::pair<int, int>> NeighbouringLabels(const ThinnedScene& scene,
+                                                    const std::vector<int>& label, int num_labels,
+                                                    double distance) {
+  const float inv_cell = static_cast<float>(1.0 / distance);
+  const float distance2 = static_cast<float>(distance * distance);
+  std::unordered_map<uint64_t, std::vector<int>> cells;
+  for (size_t j = 0; j < scene.points.size(); ++j) {
+    if (label[j] >= 0) cells[VoxelKey(scene.points.points[j], inv_cell)].push_back(static_cast<int>(j));
+  }
+  std::vector<uint8_t> near(static_cast<size_t>(num_labels) * num_labels, 0);
+  for (size_t j = 0; j < scene.points.size(); ++j) {
+    const int a = label[j];
+    if (a < 0) continue;
+    const Eigen::Vector3f& p = scene.points.points[j];
+    for (int dx = -1; dx <= 1; ++dx) {
+      for (int dy = -1; dy <= 1; ++dy) {
+        for (int dz = -1; dz <= 1; ++dz) {
+          const Eigen::Vector3f q = p + Eigen::Vector3f(dx, dy, dz) * static_cast<float>(distance);
+          const auto it = cells.find(VoxelKey(q, inv_cell));
+          if (it == cells.end()) continue;
+          for (const int k : it->second) {
+            const int b = label[k];
+            if (b <= a || near[a * num_labels + b]) continue;
+            if ((scene.points.points[k] - p).squaredNorm() <= distance2) {
+              near[a * num_labels + b] = 1;
+            }
+          }
+        }
+      }
+    }
+  }
+  std::vector<std::pair<int, int>> pairs;
+  for (int a = 0; a < num_labels; ++a) {
+    for (int b = a + 1; b < num_labels; ++b) {
+      if (near[a * num_labels + b]) pairs.emplace_back(a, b);
+    }
+  }
+  return pairs;
+}
+
+// Each cluster nothing explains, recognised joined with what lies within join_distance of
+// it: another such cluster, or the points of an accepted hypothesis (an object whose part
+// the shadow cut off — its pose, found without that part, may be wrong). The hypotheses go
+// to the larger cluster. True when that added hypotheses.
+bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEvidence>& evidence,
+                         const std::vector<bool>& unexplained, HypothesisPool* pool) {
+  const SceneRecognitionOptions& options = ctx.options;
+  const ThinnedScene& scene = ctx.scene;
+  const int num_clusters = static_cast<int>(ctx.clusters.size());
+  if (options.join_distance <= 0 || num_clusters < 2) return false;
+  // Labels: 0 … num_clusters − 1 the points of clusters nothing explains; num_clusters + k
+  // the points the k-th accepted hypothesis explains (first come, first owned).
+  std::vector<int> accepted;
+  for (size_t h = 0; h < evidence.size(); ++h) {
+    if (evidence[h].accepted) accepted.push_back(static_cast<int>(h));
+  }
+  std::vector<int> label(scene.points.size(), -1);
+  for (size_t k = 0; k < accepted.size(); ++k) {
+    for (const int j : evidence[accepted[k]].explained) {
+      if (label[j] < 0) label[j] = num_clusters + static_cast<int>(k);
+    }
+  }
+  for (size_t j = 0; j < scene.points.size(); ++j) {
+    if (unexplained[scene.cluster_of[j]]) label[j] = scene.cluster_of[j];
+  }
+  const int num_labels = num_clusters + static_cast<int>(accepted.size());
+  // The raw points of a label: its cluster's, or those whose thinned point the object owns.
+  auto points_of = [&](int l, PointCloud* out) -> int {
+    if (l < num_clusters) {
+      const PointCloud& c = ctx.clusters[l].cloud;
+      out->points.insert(out->points.end(), c.points.begin(), c.points.end());
+      return l;
+    }
+    const int h = accepted[l - num_clusters];
+    const int c = pool->hypotheses[h].cluster;
+    for (const int i : ctx.clusters[c].indices) {
+      if (label[scene.thinned_of_input[i]] == l) out->points.push_back(ctx.cloud.points[i]);
+    }
+    return c;
+  };
+  bool added = false;
+  for (const auto& [a, b] : NeighbouringLabels(scene, label, num_labels, options.join_distance)) {
+    if (a >= num_clusters) continue;  // two objects: nothing unexplained to join
+    const int partner = b < num_clusters ? b : num_clusters + accepted[b - num_clusters];
+    if (!pool->joined.emplace(a, partner).second) continue;  // joined in an earlier round
+    PointCloud joined;
+    const int cluster_a = points_of(a, &joined);
+    const size_t size_a = joined.size();
+    const int cluster_b = points_of(b, &joined);
+    const size_t before = pool->hypotheses.size();
+    AddClusterHypotheses(ctx, size_a >= joined.size() - size_a ? cluster_a : cluster_b, joined,
+                         pool);
+    spdlog::debug("{} {} and cluster {} joined ({} points): {} hypotheses",
+                  b < num_clusters ? "cluster" : "the object of cluster", cluster_b, cluster_a,
+                  joined.size(), pool->hypotheses.size() - before);
+    added |= pool->hypotheses.size() > before;
+  }
+  return added;
+}
+
+// Clusters `to_split` split along their concave seams: each of the split_segments largest
+// segments (of at least min_cluster_points points, and not the whole cluster) is
+// recognised alone and adds its hypotheses. True when that added hypotheses.
+bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_split,
+                        HypothesisPool* pool) {
+  const SceneRecognitionOptions& options = ctx.options;
+  if (options.split_segments <= 0) return false;
+  bool added = false;
+  for (size_t c = 0; c < ctx.clusters.size(); ++c) {
+    if (!to_split[c]) continue;
+    const PointCloud& points = ctx.clusters[c].cloud;
+    const Stopwatch watch;
+    const std::vector<std::vector<int>> segments = ConvexSegments(points, options.split);
+    pool->recognise_ms += watch.WallMs();
+    spdlog::debug("cluster {}: {} convex segments ({} points, largest {})", c, segments.size(),
+                  points.size(), segments.empty() ? 0 : segments[0].size());
+    if (segments.size() < 2) continue;
+    for (size_t k = 0; k < segments.size() && static_cast<int>(k) < options.split_segments; ++k) {
+      const std::vector<int>& segment = segments[k];
+      if (static_cast<int>(segment.size()) < options.segmentation.min_cluster_points) break;
+      if (segment.size() > 0.9 * points.size()) continue;  // the cluster was tried whole
+      PointCloud part;
+      part.points.reserve(segment.size());
+      for (const int i : segment) part.points.push_back(points.points[i]);
+      const size_t before = pool->hypotheses.size();
+      AddClusterHypotheses(ctx, static_cast<int>(c), part, pool);
+      added |= pool->hypotheses.size() > before;
+    }
+  }
+  return added;
+}
+
+// Clusters the accepted hypotheses leave unexplained altogether get the twins of their
+// best few hypotheses (SceneRecognitionOptions::twin_hypotheses, by model fit). True
+// when that added hypotheses.
+bool AddTwinsOfUnexplained(const SceneContext& ctx, const std::vector<HypothesisEvidence>& evidence,
+                           const std::vector<bool>& unexplained, HypothesisPool* pool) {
+  const int per_cluster = ctx.options.twin_hypotheses;
+  if (per_cluster <= 0) return false;
+  bool added = false;
+  const size_t before = evidence.size();  // the verified hypotheses
+  for (size_t c = 0; c < ctx.clusters.size(); ++c) {
+    if (!unexplained[c] || pool->twins_tried[c]) continue;
+    pool->twins_tried[c] = 1;
+    std::vector<int> candidates;
+    for (size_t h = 0; h < before; ++h) {
+      const Hypothesis& hypothesis = pool->hypotheses[h];
+      if (hypothesis.cluster != static_cast<int>(c)) continue;
+      if (!hypothesis.flipped && !hypothesis.twin) candidates.push_back(static_cast<int>(h));
+    }
+    if (candidates.empty()) continue;
+    std::stable_sort(candidates.begin(), candidates.end(), [&evidence](int a, int b) {
+      return evidence[a].model_fit > evidence[b].model_fit;
+    });
+    if (static_cast<int>(candidates.size()) > per_cluster) candidates.resize(per_cluster);
+    added |= AddTwinHypotheses(ctx, static_cast<int>(c), ctx.clusters[c].cloud, candidates, pool);
+  }
+  return added;
+}
+
 // Verifies every hypothesis of the pool against the scene (VerifyHypotheses), each with its
 // stability prior and class evidence.
 std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPool* pool) {
@@ -254,6 +532,23 @@ std::vector<uint8_t> ExplainedMask(size_t num_scene_points,
   return explained;
 }
 
+// Per cluster, the fraction of its thinned points no accepted hypothesis explains.
+std::vector<double> UnexplainedFractions(const SceneContext& ctx,
+                                         const std::vector<HypothesisEvidence>& evidence) {
+  const ThinnedScene& scene = ctx.scene;
+  const std::vector<uint8_t> explained = ExplainedMask(scene.points.size(), evidence);
+  std::vector<int> thinned(ctx.clusters.size(), 0), left(ctx.clusters.size(), 0);
+  for (size_t j = 0; j < scene.points.size(); ++j) {
+    ++thinned[scene.cluster_of[j]];
+    if (!explained[j]) ++left[scene.cluster_of[j]];
+  }
+  std::vector<double> fractions(ctx.clusters.size(), 1.0);
+  for (size_t c = 0; c < fractions.size(); ++c) {
+    if (thinned[c] > 0) fractions[c] = static_cast<double>(left[c]) / thinned[c];
+  }
+  return fractions;
+}
+
 // Remainders: clusters the accepted hypotheses leave largely unexplained (at least
 // remainder_fraction of their thinned points) are recognised again on what is left.
 // True when that added hypotheses.
@@ -263,26 +558,25 @@ bool AddRemainderHypotheses(const SceneContext& ctx,
   const std::vector<ObjectCluster>& clusters = ctx.clusters;
   const ThinnedScene& scene = ctx.scene;
   const std::vector<uint8_t> explained = ExplainedMask(scene.points.size(), evidence);
-  std::vector<int> cluster_thinned(clusters.size(), 0), cluster_left(clusters.size(), 0);
-  for (size_t j = 0; j < scene.points.size(); ++j) {
-    ++cluster_thinned[scene.cluster_of[j]];
-    if (!explained[j]) ++cluster_left[scene.cluster_of[j]];
-  }
+  const std::vector<double> left = UnexplainedFractions(ctx, evidence);
   bool added = false;
   for (size_t c = 0; c < clusters.size(); ++c) {
     bool any_accepted = false;
-    for (size_t h = 0; h < pool->hypotheses.size(); ++h) {
+    for (size_t h = 0; h < evidence.size(); ++h) {
       any_accepted |= evidence[h].accepted && pool->hypotheses[h].cluster == static_cast<int>(c);
     }
-    if (!any_accepted) continue;  // nothing explained: the whole cluster was tried
-    if (cluster_left[c] < options.remainder_fraction * cluster_thinned[c]) continue;
+    if (!any_accepted || pool->remainder_tried[c]) continue;  // the whole cluster was tried
+    if (left[c] < options.remainder_fraction) continue;
     PointCloud remainder;
     for (const int i : clusters[c].indices) {
       if (!explained[scene.thinned_of_input[i]]) remainder.points.push_back(ctx.cloud.points[i]);
     }
     if (static_cast<int>(remainder.size()) < options.segmentation.min_cluster_points) continue;
+    pool->remainder_tried[c] = 1;
     const size_t before = pool->hypotheses.size();
     AddClusterHypotheses(ctx, static_cast<int>(c), remainder, pool);
+    spdlog::debug("cluster {}: {:.0f}% unexplained, its remainder of {} points gave {} hypotheses",
+                  c, 100 * left[c], remainder.size(), pool->hypotheses.size() - before);
     added |= pool->hypotheses.size() > before;
   }
   return added;
@@ -297,12 +591,12 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
     const HypothesisEvidence& e = evidence[h];
     const Eigen::Vector3f& c = ctx.clusters[hypotheses[h].cluster].centroid;
     spdlog::debug("hypothesis cluster={} centroid=({:.4f},{:.4f},{:.4f}) class={} model={} "
-                  "score={:.3f} class_p={:.3f} flipped={} fit={:.3f} local={:.3f} "
+                  "score={:.3f} class_p={:.3f} flipped={} twin={} fit={:.3f} local={:.3f} "
                   "viol={:.3f} visible={} explained={} passes={} accepted={} class_level={} "
                   "why={}",
                   hypotheses[h].cluster, c.x(), c.y(), c.z(), s.class_name, s.model_name,
                   s.score, ClassProbability(hypotheses[h].recognition, s.class_index),
-                  hypotheses[h].flipped, e.model_fit, e.local_explained, e.violation_fraction,
+                  hypotheses[h].flipped, hypotheses[h].twin, e.model_fit, e.local_explained, e.violation_fraction,
                   e.visible, e.explained.size(), e.passes, e.accepted, e.class_level,
                   RejectionReason(e, ctx.options.verification));
   }
@@ -449,6 +743,22 @@ void SceneRecognitionOptions::Check() const {
   SOPE_CHECK(remainder_fraction >= 0 && remainder_fraction <= 1,
              "scene recognition: remainder fraction must be in [0, 1], got {}",
              remainder_fraction);
+  split.Check();
+  SOPE_CHECK(split_segments >= 0, "scene recognition: split segments must be ≥ 0, got {}",
+             split_segments);
+  SOPE_CHECK(backdrop_planar_fraction >= 0 && backdrop_planar_fraction <= 1,
+             "scene recognition: backdrop planar fraction must be in [0, 1], got {}",
+             backdrop_planar_fraction);
+  SOPE_CHECK(backdrop_extent_factor > 0 && backdrop_plane_distance > 0,
+             "scene recognition: backdrop extent factor and plane distance must be > 0, got {} "
+             "and {}",
+             backdrop_extent_factor, backdrop_plane_distance);
+  SOPE_CHECK(second_look_rounds >= 0,
+             "scene recognition: second look rounds must be ≥ 0, got {}", second_look_rounds);
+  SOPE_CHECK(join_distance >= 0, "scene recognition: join distance must be ≥ 0 m, got {}",
+             join_distance);
+  SOPE_CHECK(twin_hypotheses >= 0, "scene recognition: twin hypotheses must be ≥ 0, got {}",
+             twin_hypotheses);
   SOPE_CHECK(stability_weight >= 0, "scene recognition: stability weight must be ≥ 0, got {}",
              stability_weight);
   SOPE_CHECK(scene_leaf > 0 && model_leaf > 0,
@@ -491,7 +801,24 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
   SceneRecognitionResult result;
   result.segmentation = SegmentTable(cloud, options.segmentation);
   result.timing.segment = result.segmentation.ms;
-  const std::vector<ObjectCluster>& clusters = result.segmentation.clusters;
+  double max_diameter = 0.0;
+  for (int m = 0; m < database_.num_models(); ++m) {
+    max_diameter = std::max(max_diameter, database_.model(m).diameter);
+  }
+  std::vector<ObjectCluster>& all_clusters = result.segmentation.clusters;
+  const auto backdrop_end = std::stable_partition(
+      all_clusters.begin(), all_clusters.end(),
+      [&](const ObjectCluster& c) { return !IsBackdrop(c, max_diameter, options); });
+  result.background.assign(std::make_move_iterator(backdrop_end),
+                           std::make_move_iterator(all_clusters.end()));
+  all_clusters.erase(backdrop_end, all_clusters.end());
+  if (all_clusters.empty() && !result.background.empty()) {
+    result.segmentation.message =
+        fmt::format("nothing on the table but a backdrop ({} planar cluster(s) larger than any "
+                    "model)",
+                    result.background.size());
+  }
+  const std::vector<ObjectCluster>& clusters = all_clusters;
   if (clusters.empty()) {
     result.timing.total = total.WallMs();
     return result;
@@ -502,11 +829,41 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
 
   HypothesisPool pool;
   pool.cluster_results.resize(clusters.size());
+  pool.remainder_tried.assign(clusters.size(), 0);
+  pool.twins_tried.assign(clusters.size(), 0);
+  pool.split_tried.assign(clusters.size(), 0);
   for (size_t c = 0; c < clusters.size(); ++c) {
     AddClusterHypotheses(ctx, static_cast<int>(c), clusters[c].cloud, &pool);
   }
   std::vector<HypothesisEvidence> evidence = VerifyPool(ctx, &pool);
-  if (options.remainder_fraction > 0 && AddRemainderHypotheses(ctx, evidence, &pool)) {
+  // Second looks, in rounds while they add hypotheses (each look at most once per cluster
+  // or pair): the remainders of clusters partly explained; for clusters nothing explained,
+  // the twins of their hypotheses and the joins with what is near them; the convex
+  // segments of both kinds (touching objects).
+  for (int round = 0; round < options.second_look_rounds; ++round) {
+    // Unexplained: no accepted hypothesis of its own and most of its points unexplained
+    // (not, say, a handle a joined hypothesis of its neighbour explains).
+    const std::vector<double> left = UnexplainedFractions(ctx, evidence);
+    std::vector<bool> unexplained(clusters.size());
+    for (size_t c = 0; c < clusters.size(); ++c) unexplained[c] = left[c] > 0.5;
+    for (size_t h = 0; h < evidence.size(); ++h) {
+      if (evidence[h].accepted) unexplained[pool.hypotheses[h].cluster] = false;
+    }
+    std::vector<bool> to_split = unexplained;
+    if (options.remainder_fraction > 0) {
+      for (size_t c = 0; c < clusters.size(); ++c) {
+        if (left[c] >= options.remainder_fraction) to_split[c] = true;
+      }
+    }
+    for (size_t c = 0; c < clusters.size(); ++c) {
+      to_split[c] = to_split[c] && !pool.split_tried[c];
+      if (to_split[c]) pool.split_tried[c] = 1;
+    }
+    bool added = options.remainder_fraction > 0 && AddRemainderHypotheses(ctx, evidence, &pool);
+    added |= AddTwinsOfUnexplained(ctx, evidence, unexplained, &pool);
+    added |= AddSplitHypotheses(ctx, to_split, &pool);
+    added |= AddJoinedHypotheses(ctx, evidence, unexplained, &pool);
+    if (!added) break;
     evidence = VerifyPool(ctx, &pool);
   }
   result.hypotheses = static_cast<int>(pool.hypotheses.size());
@@ -573,6 +930,12 @@ std::string SceneRecognitionResultToJson(const SceneRecognitionResult& result) {
                 {"inliers", plane.inliers}};
   if (!result.segmentation.message.empty()) j["table"]["message"] = result.segmentation.message;
   j["clusters"] = result.segmentation.clusters.size();
+  nlohmann::json background = nlohmann::json::array();
+  for (const ObjectCluster& c : result.background) {
+    background.push_back({{"points", c.indices.size()},
+                          {"centroid", {c.centroid.x(), c.centroid.y(), c.centroid.z()}}});
+  }
+  j["background"] = std::move(background);
   j["hypotheses"] = result.hypotheses;
   j["scene_ms"] = {{"segment", result.timing.segment},
                    {"recognise", result.timing.recognise},

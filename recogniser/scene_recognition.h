@@ -14,6 +14,7 @@
 #include <vector>
 
 #include "core/point_cloud.h"
+#include "recogniser/convex_segmentation.h"
 #include "recogniser/database.h"
 #include "recogniser/recogniser.h"
 #include "recogniser/scene_verification.h"
@@ -52,7 +53,33 @@ struct SceneRecognitionOptions {
   // A cluster whose accepted hypotheses leave at least this fraction (and
   // segmentation.min_cluster_points raw points) unexplained is recognised again on the
   // remainder (0: never).
-  double remainder_fraction = 0.3;
+  double remainder_fraction = 0.15;
+  // A cluster no hypothesis explains gets, for its first twin_hypotheses hypotheses (by
+  // model fit), their half-turn twins about each principal axis of the model, ICP-refined
+  // on the cluster (0: none). A view-based search confuses an object with its other side
+  // when the two look alike (a drill on its left or right side).
+  int twin_hypotheses = 2;
+  // A cluster no hypothesis explains is split along its concave seams
+  // (recogniser/convex_segmentation.h) and its split_segments largest segments are
+  // recognised alone (0: never): touching objects clustered together, whose mixed
+  // points no single view matches.
+  int split_segments = 4;
+  // A cluster no hypothesis explains is also recognised joined with each cluster that
+  // comes within join_distance of it (metres; 0: never): one object cut in two by a
+  // shadow (a mug's handle apart from its body) or by another object in front of it.
+  double join_distance = 0.025;
+  // Rounds of these second looks (remainders, twins, segments, joins), each round on the
+  // scene verification of the one before, until a round adds nothing.
+  int second_look_rounds = 3;
+  ConvexSegmentationOptions split;
+  // Backdrop: a cluster whose points lie within backdrop_plane_distance of one plane
+  // (at least backdrop_planar_fraction of them) and that spans more than
+  // backdrop_extent_factor × the largest database model's diameter is a wall, a
+  // backdrop or a shelf side behind the table, not an object: it is left out of
+  // recognition (SceneRecognitionResult::background). 0: no such test.
+  double backdrop_planar_fraction = 0.8;
+  double backdrop_extent_factor = 1.2;
+  double backdrop_plane_distance = 0.006;
   // Voxel leaf of the scene points the verification explains, and of the model surface
   // samples (union of the model's database views), metres.
   double scene_leaf = 0.003;
@@ -100,6 +127,9 @@ struct SceneRecognitionResult {
   TableSegmentation segmentation;
   std::vector<RecognisedObject> objects;  // verified, best score first
   std::vector<UnknownObject> unknown;     // clusters (or remainders) nothing explains
+  // Clusters taken for a backdrop (SceneRecognitionOptions::backdrop_planar_fraction),
+  // removed from segmentation.clusters before recognition.
+  std::vector<ObjectCluster> background;
   int hypotheses = 0;                     // verified together
   SceneTimings timing;
   bool empty() const { return objects.empty(); }
@@ -115,7 +145,8 @@ std::string RejectionReason(const HypothesisEvidence& evidence,
 // the top level (RecognitionResultToJson; no object: "recognised": false, no class), and
 // "objects": [each the per-object result fields plus "points", "visible_fraction",
 // "verified", "match_level" ("instance" or "class"), "cluster", "snap_m"], "unknown": [{"points", "centroid", "guess"}], "table":
-// {"found", "normal", "offset_m", "inliers"}, "clusters", and the scene's timings
+// {"found", "normal", "offset_m", "inliers"}, "clusters", "background": [{"points",
+// "centroid"}], and the scene's timings
 // ("scene_ms": segment, recognise, verify, total).
 std::string SceneRecognitionResultToJson(const SceneRecognitionResult& result);
 

@@ -109,6 +109,7 @@ VisibleModel ClassifyAlongRays(const PointCloud& model, const Eigen::Matrix3f& r
 // the box (local).
 struct Explanation {
   std::vector<int> explained;
+  std::vector<int> local_points;  // increasing; `explained` is a subset
   int fitting = 0;
   int local = 0;
 };
@@ -129,6 +130,7 @@ Explanation ExplainScene(const PointCloud& scene, const VisibleModel& visible,
                         (q.array() <= visible.box_max_in_model.array()).all();
     if (!in_box) continue;
     ++explanation.local;
+    explanation.local_points.push_back(static_cast<int>(j));
     float d2 = 0;
     const int nearest =
         model_grid.Nearest(scene.points[j], Eigen::Vector3f::Zero(), 0.0f, 1, distance2, &d2);
@@ -143,11 +145,79 @@ Explanation ExplainScene(const PointCloud& scene, const VisibleModel& visible,
   return explanation;
 }
 
-// The evidence for one hypothesis, at instance level and, failing that, at class level.
+// What a hypothesis's fit tests need again when other hypotheses have been accepted: its
+// explanation at each level computed (instance; class when it was allowed one).
+struct LevelExplanations {
+  Explanation instance;
+  Explanation class_level;
+  bool class_allowed = false;  // class evidence and violations allowed a class-level test
+  double class_fit = 0.0;
+};
+
+// The fit tests at one level with local_explained counted over the box's scene points
+// that no other accepted hypothesis explains (`taken`: explained by an accepted one); the
+// plain test when `taken` is empty.
+bool PassesLevel(const Explanation& explanation, double fit, double violation_fraction,
+                 double min_fit, double min_local, double max_violations,
+                 const std::vector<uint8_t>& taken, double* local_explained) {
+  int others = 0;
+  if (!taken.empty()) {
+    size_t k = 0;  // both lists increase
+    for (const int j : explanation.local_points) {
+      while (k < explanation.explained.size() && explanation.explained[k] < j) ++k;
+      const bool mine = k < explanation.explained.size() && explanation.explained[k] == j;
+      others += !mine && taken[j];
+    }
+  }
+  const int local = explanation.local - others;
+  *local_explained =
+      local > 0 ? static_cast<double>(explanation.explained.size()) / local : 0.0;
+  return fit >= min_fit && *local_explained >= min_local && violation_fraction <= max_violations &&
+         !explanation.explained.empty();
+}
+
+// Sets e's fit figures from `explanation` (the level the hypothesis is judged at).
+void UseExplanation(const Explanation& explanation, double fit, double local_explained,
+                    bool class_level, HypothesisEvidence* e) {
+  e->class_level = class_level;
+  e->model_fit = fit;
+  e->local_explained = local_explained;
+  e->fitting = explanation.fitting;
+  e->local = explanation.local;
+  e->visible_fraction = e->visible > 0 ? static_cast<double>(explanation.fitting) / e->visible : 0.0;
+  e->explained = explanation.explained;
+}
+
+// Judges `e` at instance level and, failing that, at class level (`taken` as in
+// PassesLevel); sets e->passes and the figures of the level it is judged at.
+void Judge(const LevelExplanations& levels, const SceneVerificationOptions& options,
+           const std::vector<uint8_t>& taken, HypothesisEvidence* e) {
+  const int unoccluded = std::max(1, e->visible - e->occluded - e->empty);
+  const double fit = std::min(1.0, static_cast<double>(levels.instance.fitting) / unoccluded);
+  double local_explained = 0.0;
+  const bool instance =
+      PassesLevel(levels.instance, fit, e->violation_fraction, options.min_model_fit,
+                  options.min_local_explained, options.max_violation_fraction, taken,
+                  &local_explained);
+  UseExplanation(levels.instance, fit, local_explained, false, e);
+  if (!instance && levels.class_allowed) {
+    double class_local = 0.0;
+    if (PassesLevel(levels.class_level, levels.class_fit, e->violation_fraction,
+                    options.class_min_model_fit, options.class_min_local_explained,
+                    options.class_max_violation_fraction, taken, &class_local)) {
+      UseExplanation(levels.class_level, levels.class_fit, class_local, true, e);
+    }
+  }
+  e->passes = instance || e->class_level;
+}
+
+// The evidence for one hypothesis, at instance level and, failing that, at class level;
+// `levels` keeps the explanations for a second look.
 HypothesisEvidence EvaluateHypothesis(const PointCloud& scene, const SceneHypothesis& hypothesis,
                                       const DepthGrid& depth,
                                       const SceneVerificationOptions& options,
-                                      const std::function<bool(const Eigen::Vector3f&)>& ignore) {
+                                      const std::function<bool(const Eigen::Vector3f&)>& ignore,
+                                      LevelExplanations* levels) {
   const PointCloud& model = *hypothesis.model_cloud;
   const Eigen::Matrix3f rotation = hypothesis.cam_from_model.rotation.cast<float>();
   const Eigen::Vector3f translation = hypothesis.cam_from_model.translation.cast<float>();
@@ -157,51 +227,38 @@ HypothesisEvidence EvaluateHypothesis(const PointCloud& scene, const SceneHypoth
       ClassifyAlongRays(model, rotation, translation, depth, options, ignore, &e);
   // Scene points near the model's visible surface: explained; model points near the
   // scene: fitting.
-  Explanation at_instance =
+  levels->instance =
       ExplainScene(scene, visible, rotation, translation, options, options.inlier_distance);
-  e.explained = std::move(at_instance.explained);
-  e.fitting = at_instance.fitting;
-  e.local = at_instance.local;
   const int unoccluded = std::max(1, e.visible - e.occluded - e.empty);
-  e.model_fit = std::min(1.0, static_cast<double>(e.fitting) / unoccluded);
   e.violation_fraction = static_cast<double>(e.violations) / unoccluded;
-  e.local_explained = e.local > 0 ? static_cast<double>(e.explained.size()) / e.local : 0.0;
-  e.visible_fraction = e.visible > 0 ? static_cast<double>(e.fitting) / e.visible : 0.0;
-  const bool instance = e.model_fit >= options.min_model_fit &&
-                        e.local_explained >= options.min_local_explained &&
-                        e.violation_fraction <= options.max_violation_fraction;
-  if (!instance && hypothesis.class_probability >= options.min_class_probability &&
-      e.violation_fraction <= options.class_max_violation_fraction) {
-    // Class level: the same tests at the class inlier distance (another instance's surface
-    // lies some millimetres off the database model's), with their own thresholds.
-    Explanation at_class = ExplainScene(scene, visible, rotation, translation, options,
-                                        options.class_inlier_distance);
-    const double fit = std::min(1.0, static_cast<double>(at_class.fitting) / unoccluded);
-    const double local_explained =
-        at_class.local > 0 ? static_cast<double>(at_class.explained.size()) / at_class.local
-                           : 0.0;
-    if (fit >= options.class_min_model_fit &&
-        local_explained >= options.class_min_local_explained && !at_class.explained.empty()) {
-      e.class_level = true;
-      e.model_fit = fit;
-      e.local_explained = local_explained;
-      e.fitting = at_class.fitting;
-      e.visible_fraction = e.visible > 0 ? static_cast<double>(at_class.fitting) / e.visible : 0.0;
-      e.explained = std::move(at_class.explained);
-    }
+  // Class level: the same tests at the class inlier distance (another instance's surface
+  // lies some millimetres off the database model's), with their own thresholds.
+  levels->class_allowed = hypothesis.class_probability >= options.min_class_probability &&
+                          e.violation_fraction <= options.class_max_violation_fraction;
+  const std::vector<uint8_t> nothing_taken;
+  Judge(*levels, options, nothing_taken, &e);
+  if (levels->class_allowed && !e.passes) {
+    levels->class_level = ExplainScene(scene, visible, rotation, translation, options,
+                                       options.class_inlier_distance);
+    levels->class_fit =
+        std::min(1.0, static_cast<double>(levels->class_level.fitting) / unoccluded);
+    Judge(*levels, options, nothing_taken, &e);
+  } else {
+    levels->class_allowed = false;  // passed at instance level: no class-level look needed
   }
-  e.passes = (instance || e.class_level) && !e.explained.empty();
   return e;
 }
 
 // Greedy global selection: repeatedly accepts the passing hypothesis of the largest gain
 // (fresh points less duplicates, violations and the prior) until none gains enough.
-void SelectGreedily(size_t num_scene_points, const std::vector<SceneHypothesis>& hypotheses,
-                    const SceneVerificationOptions& options,
-                    std::vector<HypothesisEvidence>* evidence) {
+// `taken` (per scene point: explained by an accepted hypothesis) and `done` (per
+// hypothesis) carry over between calls.
+void SelectGreedily(const std::vector<SceneHypothesis>& hypotheses,
+                    const SceneVerificationOptions& options, std::vector<HypothesisEvidence>* evidence,
+                    std::vector<uint8_t>* taken_points, std::vector<uint8_t>* done_hypotheses) {
   std::vector<HypothesisEvidence>& out = *evidence;
-  std::vector<uint8_t> taken(num_scene_points, 0);
-  std::vector<uint8_t> done(hypotheses.size(), 0);
+  std::vector<uint8_t>& taken = *taken_points;
+  std::vector<uint8_t>& done = *done_hypotheses;
   while (true) {
     int best = -1;
     double best_gain = 0.0;
@@ -253,6 +310,8 @@ void SceneVerificationOptions::Check() const {
              violation_weight);
   SOPE_CHECK(box_margin >= 0, "scene verification: box margin must be ≥ 0 m, got {}",
              box_margin);
+  SOPE_CHECK(relook_rounds >= 0, "scene verification: relook rounds must be ≥ 0, got {}",
+             relook_rounds);
 }
 
 std::vector<HypothesisEvidence> VerifyHypotheses(
@@ -262,13 +321,32 @@ std::vector<HypothesisEvidence> VerifyHypotheses(
   options.Check();
   const DepthGrid depth(observed, options.ray_cell);
   std::vector<HypothesisEvidence> out(hypotheses.size());
+  std::vector<LevelExplanations> levels(hypotheses.size());
   for (size_t h = 0; h < hypotheses.size(); ++h) {
     const SceneHypothesis& hypothesis = hypotheses[h];
     SOPE_CHECK(hypothesis.model_cloud != nullptr && hypothesis.model_cloud->HasNormals(),
                "scene verification: hypothesis {} has no model cloud with normals", h);
-    out[h] = EvaluateHypothesis(scene, hypothesis, depth, options, ignore);
+    out[h] = EvaluateHypothesis(scene, hypothesis, depth, options, ignore, &levels[h]);
   }
-  SelectGreedily(scene.size(), hypotheses, options, &out);
+  std::vector<uint8_t> taken(scene.size(), 0), done(hypotheses.size(), 0);
+  SelectGreedily(hypotheses, options, &out, &taken, &done);
+  // Second looks: scene points in a hypothesis's box that an accepted hypothesis explains
+  // (a touching object) no longer count against its local_explained; the hypotheses that
+  // pass then join the selection, until none does.
+  for (int round = 0; round < options.relook_rounds; ++round) {
+    bool more = false;
+    for (size_t h = 0; h < hypotheses.size(); ++h) {
+      if (done[h] || out[h].passes) continue;
+      HypothesisEvidence relook = out[h];
+      Judge(levels[h], options, taken, &relook);
+      if (relook.passes) {
+        out[h] = std::move(relook);
+        more = true;
+      }
+    }
+    if (!more) break;
+    SelectGreedily(hypotheses, options, &out, &taken, &done);
+  }
   return out;
 }
 

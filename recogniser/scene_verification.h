@@ -65,6 +65,10 @@ struct SceneVerificationOptions {
   // Scene points inside the model's bounding box grown by this margin count as its
   // neighbourhood for local_explained (metres).
   double box_margin = 0.004;
+  // Rounds of second looks after the selection: scene points in a hypothesis's box that
+  // an accepted hypothesis explains (a touching or overlapping object) stop counting
+  // against its local_explained, and those that then pass are selected (0: none).
+  int relook_rounds = 2;
   void Check() const;  // throws sope::Error naming the invalid value
 };
 
