@@ -107,7 +107,7 @@ double ThreadCpuMs() {
 
 // The tabletop path with the given clustering of the table segmentation.
 void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clustering,
-              std::vector<double>* totals_out) {
+              std::vector<double>* totals_out, bool second_looks = true) {
   const Input& input = GetInput();
   const SceneRecogniser recogniser(*input.db);
   std::vector<double> total, cpu, scene_ms, segment_ms;
@@ -121,6 +121,7 @@ void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clus
     SceneRecognitionOptions options;
     options.segmentation.max_range = in.band ? in.band->max_range : 2.0;
     options.segmentation.clustering = clustering;
+    if (!second_looks) options.second_look_rounds = 0;
     const SceneRecognitionResult scene = recogniser.Recognise(result.triangulation.cloud, options);
     const double ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
@@ -145,6 +146,15 @@ void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clus
 
 std::vector<double> pcl_cpu;
 
+std::vector<double> first_look_cpu;
+
+void BM_Table_AllObjects_FirstLookOnly(benchmark::State& state) {
+  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &first_look_cpu, false);
+  state.SetLabel("peer: the same without second looks (remainders, twins, convex splits, joins "
+                 "of clusters left unexplained)");
+}
+
+
 void BM_Table_AllObjects_PclClustering(benchmark::State& state) {
   RunTable(state, TableSegmentationOptions::Clustering::kPclKdTree, &pcl_cpu);
   state.SetLabel("peer: the same with PCL's kd-tree Euclidean clustering (the former path)");
@@ -155,6 +165,10 @@ void BM_Table_AllObjects(benchmark::State& state) {
   if (!pcl_cpu.empty()) {
     state.counters["cpu_ratio_vs_pcl_clustering"] =
         Quantile(table_totals, 0.5) / Quantile(pcl_cpu, 0.5);
+  }
+  if (!first_look_cpu.empty()) {
+    state.counters["cpu_ratio_vs_first_look_only"] =
+        Quantile(table_totals, 0.5) / Quantile(first_look_cpu, 0.5);
   }
   state.SetLabel("5 objects on a table: decode + triangulate + segment (grid clusters) + every "
                  "cluster + verify");
@@ -224,6 +238,7 @@ void BM_SingleObjectPath(benchmark::State& state) {
 BENCHMARK(BM_Segment_PclKdTree)->Iterations(5 * kScenes);
 BENCHMARK(BM_Segment_Grid)->Iterations(5 * kScenes);
 BENCHMARK(BM_Table_AllObjects_PclClustering)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Table_AllObjects_FirstLookOnly)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_SingleObjectPath)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 

@@ -138,6 +138,8 @@ struct HypothesisPool {
   // cluster and another cluster, or num_clusters + the accepted hypothesis it joined).
   std::vector<uint8_t> remainder_tried, twins_tried, split_tried;
   std::set<std::pair<int, int>> joined;
+  // The verification of the hypotheses so far (they are only ever appended).
+  VerificationCache verification;
   double recognise_ms = 0.0;
   double verify_ms = 0.0;
 };
@@ -266,6 +268,8 @@ std::optional<PoseQuery> ClusterPoseQuery(const SceneContext& ctx, const PointCl
   }
 }
 
+constexpr size_t kTwinIcpPoints = 1500;
+
 // Principal axes of a model surface sample (model frame, columns, largest spread first).
 Eigen::Matrix3d PrincipalAxes(const PointCloud& surface) {
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
@@ -302,10 +306,18 @@ bool AddTwinHypotheses(const SceneContext& ctx, int cluster, const PointCloud& p
     const PointCloud& surface = ctx.scene_recogniser.ModelSurface(s.model, ctx.options.model_leaf);
     const Eigen::Vector3d centre = ctx.database.model(s.model).center;
     const Eigen::Matrix3d axes = PrincipalAxes(surface);
+    // ICP on an even subsample of the surface (a few thousand points fix a pose; the scene
+    // verification then measures the fit on all of them).
+    std::vector<Eigen::Vector3f> points, normals;
+    const size_t stride = std::max<size_t>(1, surface.size() / kTwinIcpPoints);
+    for (size_t i = 0; i < surface.size(); i += stride) {
+      points.push_back(surface.points[i]);
+      normals.push_back(surface.normals[i]);
+    }
     for (int k = 0; k < 3; ++k) {
       const Eigen::Matrix3d turn = Eigen::AngleAxisd(M_PI, axes.col(k)).toRotationMatrix();
       const Rigid3d model_turn(turn, centre - turn * centre);
-      const IcpResult icp = RefinePose(surface.points, surface.normals, *query,
+      const IcpResult icp = RefinePose(points, normals, *query,
                                        canonical_from_cam * s.cam_from_model * model_turn,
                                        pose_options);
       Hypothesis twin = h;
@@ -516,7 +528,8 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
                                        options.segmentation.plane_distance);
   std::vector<HypothesisEvidence> evidence = VerifyHypotheses(
       ctx.scene.points, ctx.cloud, scene_hypotheses, options.verification,
-      [&plane, cut](const Eigen::Vector3f& p) { return plane.found && plane.Height(p) < cut; });
+      [&plane, cut](const Eigen::Vector3f& p) { return plane.found && plane.Height(p) < cut; },
+      &pool->verification);
   pool->verify_ms += watch.WallMs();
   return evidence;
 }
@@ -592,12 +605,13 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
     const Eigen::Vector3f& c = ctx.clusters[hypotheses[h].cluster].centroid;
     spdlog::debug("hypothesis cluster={} centroid=({:.4f},{:.4f},{:.4f}) class={} model={} "
                   "score={:.3f} class_p={:.3f} flipped={} twin={} fit={:.3f} local={:.3f} "
-                  "viol={:.3f} visible={} explained={} passes={} accepted={} class_level={} "
-                  "why={}",
+                  "viol={:.3f} visible={} explained={} duplicates={} violations={} passes={} "
+                  "accepted={} class_level={} why={}",
                   hypotheses[h].cluster, c.x(), c.y(), c.z(), s.class_name, s.model_name,
                   s.score, ClassProbability(hypotheses[h].recognition, s.class_index),
                   hypotheses[h].flipped, hypotheses[h].twin, e.model_fit, e.local_explained, e.violation_fraction,
-                  e.visible, e.explained.size(), e.passes, e.accepted, e.class_level,
+                  e.visible, e.explained.size(), e.duplicates, e.violations, e.passes,
+                  e.accepted, e.class_level,
                   RejectionReason(e, ctx.options.verification));
   }
 }
@@ -859,12 +873,21 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
       to_split[c] = to_split[c] && !pool.split_tried[c];
       if (to_split[c]) pool.split_tried[c] = 1;
     }
+    const Stopwatch look;
     bool added = options.remainder_fraction > 0 && AddRemainderHypotheses(ctx, evidence, &pool);
+    const double t_remainder = look.WallMs();
     added |= AddTwinsOfUnexplained(ctx, evidence, unexplained, &pool);
+    const double t_twins = look.WallMs();
     added |= AddSplitHypotheses(ctx, to_split, &pool);
+    const double t_split = look.WallMs();
     added |= AddJoinedHypotheses(ctx, evidence, unexplained, &pool);
+    const double t_join = look.WallMs();
     if (!added) break;
     evidence = VerifyPool(ctx, &pool);
+    spdlog::debug("second looks, round {}: remainders {:.1f} ms, twins {:.1f} ms, splits {:.1f} "
+                  "ms, joins {:.1f} ms, verification {:.1f} ms; {} hypotheses",
+                  round, t_remainder, t_twins - t_remainder, t_split - t_twins, t_join - t_split,
+                  look.WallMs() - t_join, pool.hypotheses.size());
   }
   result.hypotheses = static_cast<int>(pool.hypotheses.size());
   LogHypotheses(ctx, pool, evidence);

@@ -53,7 +53,7 @@ struct SceneRecognitionOptions {
   // A cluster whose accepted hypotheses leave at least this fraction (and
   // segmentation.min_cluster_points raw points) unexplained is recognised again on the
   // remainder (0: never).
-  double remainder_fraction = 0.15;
+  double remainder_fraction = 0.3;
   // A cluster no hypothesis explains gets, for its first twin_hypotheses hypotheses (by
   // model fit), their half-turn twins about each principal axis of the model, ICP-refined
   // on the cluster (0: none). A view-based search confuses an object with its other side
@@ -70,7 +70,7 @@ struct SceneRecognitionOptions {
   double join_distance = 0.025;
   // Rounds of these second looks (remainders, twins, segments, joins), each round on the
   // scene verification of the one before, until a round adds nothing.
-  int second_look_rounds = 3;
+  int second_look_rounds = 2;
   ConvexSegmentationOptions split;
   // Backdrop: a cluster whose points lie within backdrop_plane_distance of one plane
   // (at least backdrop_planar_fraction of them) and that spans more than

@@ -517,6 +517,25 @@ TEST(SceneVerification, PointsAnAcceptedHypothesisExplainsNoLongerCountAgainstAn
   EXPECT_TRUE(twice[1].accepted);
   EXPECT_NEAR(twice[1].local_explained, 1.0, 0.02);
   EXPECT_EQ(twice[1].duplicates, 0);
+
+  // With a cache, hypothesis by hypothesis: the same evidence as all at once.
+  VerificationCache cache;
+  const std::vector<SceneHypothesis> first = {hypotheses[0]};
+  const std::vector<HypothesisEvidence> alone =
+      VerifyHypotheses(scene, scene, first, options, {}, &cache);
+  ASSERT_EQ(alone.size(), 1u);
+  EXPECT_TRUE(alone[0].accepted);
+  const std::vector<HypothesisEvidence> cached =
+      VerifyHypotheses(scene, scene, hypotheses, options, {}, &cache);
+  ASSERT_EQ(cached.size(), twice.size());
+  for (size_t h = 0; h < cached.size(); ++h) {
+    EXPECT_EQ(cached[h].accepted, twice[h].accepted) << h;
+    EXPECT_EQ(cached[h].explained, twice[h].explained) << h;
+    EXPECT_EQ(cached[h].model_fit, twice[h].model_fit) << h;
+    EXPECT_EQ(cached[h].local_explained, twice[h].local_explained) << h;
+  }
+  testing::ExpectThrowsWithMessage<Error>(
+      [&] { VerifyHypotheses(scene, scene, first, options, {}, &cache); }, {"cache holds 2"});
 }
 
 TEST(TableSegmentation, RefusesNanAndSinglePointClouds) {

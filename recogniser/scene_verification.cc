@@ -278,7 +278,14 @@ void SelectGreedily(const std::vector<SceneHypothesis>& hypotheses,
         best_duplicates = duplicates;
       }
     }
-    if (best < 0) break;
+    if (best < 0) {
+      for (size_t h = 0; h < hypotheses.size(); ++h) {
+        if (done[h] || !out[h].passes) continue;
+        out[h].duplicates = 0;
+        for (const int j : out[h].explained) out[h].duplicates += taken[j];
+      }
+      break;
+    }
     done[best] = 1;
     out[best].accepted = true;
     out[best].duplicates = best_duplicates;
@@ -314,20 +321,35 @@ void SceneVerificationOptions::Check() const {
              relook_rounds);
 }
 
+struct VerificationCache::Impl {
+  std::unique_ptr<DepthGrid> depth;
+  std::vector<HypothesisEvidence> evidence;  // each hypothesis's own, before the selection
+  std::vector<LevelExplanations> levels;
+};
+VerificationCache::VerificationCache() : impl(std::make_unique<Impl>()) {}
+VerificationCache::~VerificationCache() = default;
+
 std::vector<HypothesisEvidence> VerifyHypotheses(
     const PointCloud& scene, const PointCloud& observed,
     const std::vector<SceneHypothesis>& hypotheses, const SceneVerificationOptions& options,
-    const std::function<bool(const Eigen::Vector3f&)>& ignore) {
+    const std::function<bool(const Eigen::Vector3f&)>& ignore, VerificationCache* cache) {
   options.Check();
-  const DepthGrid depth(observed, options.ray_cell);
-  std::vector<HypothesisEvidence> out(hypotheses.size());
-  std::vector<LevelExplanations> levels(hypotheses.size());
-  for (size_t h = 0; h < hypotheses.size(); ++h) {
+  VerificationCache local;
+  VerificationCache::Impl& kept = cache ? *cache->impl : *local.impl;
+  if (!kept.depth) kept.depth = std::make_unique<DepthGrid>(observed, options.ray_cell);
+  SOPE_CHECK(kept.evidence.size() <= hypotheses.size(),
+             "scene verification: the cache holds {} hypotheses, the call only {}",
+             kept.evidence.size(), hypotheses.size());
+  for (size_t h = kept.evidence.size(); h < hypotheses.size(); ++h) {
     const SceneHypothesis& hypothesis = hypotheses[h];
     SOPE_CHECK(hypothesis.model_cloud != nullptr && hypothesis.model_cloud->HasNormals(),
                "scene verification: hypothesis {} has no model cloud with normals", h);
-    out[h] = EvaluateHypothesis(scene, hypothesis, depth, options, ignore, &levels[h]);
+    kept.levels.emplace_back();
+    kept.evidence.push_back(
+        EvaluateHypothesis(scene, hypothesis, *kept.depth, options, ignore, &kept.levels.back()));
   }
+  std::vector<HypothesisEvidence> out = kept.evidence;
+  const std::vector<LevelExplanations>& levels = kept.levels;
   std::vector<uint8_t> taken(scene.size(), 0), done(hypotheses.size(), 0);
   SelectGreedily(hypotheses, options, &out, &taken, &done);
   // Second looks: scene points in a hypothesis's box that an accepted hypothesis explains

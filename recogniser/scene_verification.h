@@ -19,6 +19,7 @@
 #pragma once
 
 #include <functional>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
@@ -101,7 +102,9 @@ struct HypothesisEvidence {
   bool passes = false;              // the three fit tests (instance or class level)
   bool class_level = false;         // passes only the class-level tests
   bool accepted = false;            // chosen by the global selection
-  int duplicates = 0;               // explained points an earlier accepted one had
+  // Explained points an accepted hypothesis had before it (accepted), or has at the end of
+  // the selection (passing but not accepted: why its gain fell short).
+  int duplicates = 0;
 };
 
 // Verifies `hypotheses` against `scene` (the points to explain: what is above the table,
@@ -110,9 +113,24 @@ struct HypothesisEvidence {
 // `ignore` (optional): model points (camera frame) it returns true for are left out of
 // the model-side tests — e.g. the band just above the table, which the segmentation cut
 // away from `scene` (a flat object would otherwise seem not to fit).
+// `cache` (optional): what a call on the same scene, observed cloud, options and `ignore`
+// computed — the free-space depth grid and each hypothesis's own evidence — is reused by
+// the next call, whose first hypotheses must then be the previous call's, unchanged (new
+// ones appended). The selection is always made afresh. Results are the same as without.
+class VerificationCache {
+ public:
+  VerificationCache();
+  ~VerificationCache();
+  VerificationCache(const VerificationCache&) = delete;
+  VerificationCache& operator=(const VerificationCache&) = delete;
+  struct Impl;
+  std::unique_ptr<Impl> impl;
+};
+
 std::vector<HypothesisEvidence> VerifyHypotheses(
     const PointCloud& scene, const PointCloud& observed,
     const std::vector<SceneHypothesis>& hypotheses, const SceneVerificationOptions& options = {},
-    const std::function<bool(const Eigen::Vector3f&)>& ignore = {});
+    const std::function<bool(const Eigen::Vector3f&)>& ignore = {},
+    VerificationCache* cache = nullptr);
 
 }  // namespace sope
