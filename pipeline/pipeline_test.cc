@@ -20,6 +20,7 @@
 #include "core/file_util.h"
 #include "decoder/decoder.h"
 #include "pipeline/scan_source.h"
+#include "recogniser/pose_metrics.h"
 #include "recogniser/tools/database_builder.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/virtual_rig.h"
@@ -224,6 +225,48 @@ TEST_F(Pipeline, AFullDiskLeavesNoCloudsWithoutTheirResultsLine) {
     EXPECT_EQ(entry.path().filename().string(), "results.jsonl") << "left behind: "
                                                               << entry.path().string();
   }
+}
+
+// Tabletop matching: a bottle and a mug side by side, only the mug detected (exactly). The
+// mug's detection lies within half the bottle's diameter of the bottle's centre too; the
+// bottle comes first in the truth list, yet the detection goes to the mug (its own model
+// first), and the bottle is a miss.
+TEST_F(Pipeline, TableMatchingGivesADetectionToItsOwnModelFirst) {
+  auto model_index = [](const std::string& name) {
+    for (int m = 0; m < db_->num_models(); ++m) {
+      if (db_->model(m).name == name) return m;
+    }
+    return -1;
+  };
+  const int mug = model_index("mug_0");
+  ASSERT_GE(mug, 0);
+  ScanTruth truth;
+  ScanObjectTruth bottle{"bottle_0", "bottle", 0, true, MakeObject(ObjectClass::kBottle, 0), {}};
+  bottle.cam_from_model.translation = Eigen::Vector3d(0.0, 0.0, 0.6);
+  ScanObjectTruth cup{"mug_0", "mug", 0, true, MakeObject(ObjectClass::kMug, 0), {}};
+  cup.cam_from_model.translation = Eigen::Vector3d(0.06, 0.0, 0.6);
+  truth.objects = {bottle, cup};
+  SceneRecognitionResult scene;
+  RecognisedObject detected;
+  Suggestion s;
+  s.model = mug;
+  s.model_name = "mug_0";
+  s.class_name = "mug";
+  s.cam_from_model = cup.cam_from_model;
+  s.posed = true;
+  detected.recognition.suggestions.push_back(s);
+  scene.objects.push_back(detected);
+  const double gap = (db_->model(mug).center - MakePoseTruthModel(bottle.mesh).center +
+                      Eigen::Vector3d(0.06, 0.0, 0.0))
+                         .norm();
+  ASSERT_LT(gap, 0.5 * MakePoseTruthModel(bottle.mesh).diameter) << "the test needs them close";
+  const std::vector<TableObjectMatch> matches = MatchTableObjects(scene, truth, *db_);
+  ASSERT_EQ(matches.size(), 2u);
+  EXPECT_EQ(matches[0].detection, -1);
+  EXPECT_FALSE(matches[0].correct);
+  EXPECT_EQ(matches[1].detection, 0);
+  EXPECT_TRUE(matches[1].model_correct);
+  EXPECT_TRUE(matches[1].correct);
 }
 
 TEST(AppendLine, CutsBackAFailedWrite) {

@@ -246,37 +246,46 @@ void ScanAndRecogniseController::ScanTable(const FrameSet& frames, Correspondenc
 
 std::vector<TableObjectMatch> MatchTableObjects(const SceneRecognitionResult& scene,
                                                 const ScanTruth& truth, const Database& database) {
-  std::vector<TableObjectMatch> matches;
-  std::vector<uint8_t> used(scene.objects.size(), 0);
+  std::vector<TableObjectMatch> matches(truth.objects.size());
+  std::vector<PoseTruthModel> models;
+  std::vector<Eigen::Vector3d> centres;
   for (size_t t = 0; t < truth.objects.size(); ++t) {
     const ScanObjectTruth& object = truth.objects[t];
-    const PoseTruthModel model = MakePoseTruthModel(object.mesh, {2000, 1});
-    const Eigen::Vector3d centre = object.cam_from_model * model.center;
-    TableObjectMatch match;
-    match.truth = static_cast<int>(t);
-    double nearest = 0.5 * model.diameter;
-    for (size_t d = 0; d < scene.objects.size(); ++d) {
-      if (used[d]) continue;
-      const Suggestion& s = scene.objects[d].best();
-      const ModelRecord& record = database.model(s.model);
-      const Eigen::Vector3d detected = s.cam_from_model * record.center;
-      const double distance = (detected - centre).norm();
-      if (distance < nearest) {
-        nearest = distance;
-        match.detection = static_cast<int>(d);
+    models.push_back(MakePoseTruthModel(object.mesh, {2000, 1}));
+    centres.push_back(object.cam_from_model * models.back().center);
+    matches[t].truth = static_cast<int>(t);
+  }
+  // Passes: a detection of the truth's own model, then of its class, then any — so that a
+  // right detection is not taken by a neighbouring truth object that happens to come first.
+  std::vector<uint8_t> used(scene.objects.size(), 0);
+  for (int pass = 0; pass < 3; ++pass) {
+    for (size_t t = 0; t < truth.objects.size(); ++t) {
+      const ScanObjectTruth& object = truth.objects[t];
+      TableObjectMatch& match = matches[t];
+      if (match.detection >= 0) continue;
+      double nearest = 0.5 * models[t].diameter;
+      for (size_t d = 0; d < scene.objects.size(); ++d) {
+        if (used[d]) continue;
+        const Suggestion& s = scene.objects[d].best();
+        if (pass == 0 && !(object.known && s.model_name == object.model)) continue;
+        if (pass == 1 && !(object.known && s.class_name == object.class_name)) continue;
+        const Eigen::Vector3d detected = s.cam_from_model * database.model(s.model).center;
+        const double distance = (detected - centres[t]).norm();
+        if (distance < nearest) {
+          nearest = distance;
+          match.detection = static_cast<int>(d);
+        }
       }
-    }
-    if (match.detection >= 0) {
+      if (match.detection < 0) continue;
       used[match.detection] = 1;
       const Suggestion& s = scene.objects[match.detection].best();
       match.model_correct = object.known && s.model_name == object.model;
       match.class_correct = object.known && s.class_name == object.class_name;
       if (match.class_correct) {
-        match.pose_error = ComparePoses(s.cam_from_model, object.cam_from_model, model);
+        match.pose_error = ComparePoses(s.cam_from_model, object.cam_from_model, models[t]);
         match.correct = match.model_correct && match.pose_error->adds_over_diameter() < 0.1;
       }
     }
-    matches.push_back(match);
   }
   return matches;
 }

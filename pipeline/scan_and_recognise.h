@@ -72,7 +72,8 @@ struct ScanFiles {
 };
 
 // A truth object of a tabletop scan and the recognised object matched to it (the nearest
-// by bounding-box centre within half the truth's diameter, each detection used once).
+// by bounding-box centre within half the truth's diameter, each detection used once;
+// detections of the truth's own model first, then of its class, then any).
 struct TableObjectMatch {
   int truth = -1;      // into ScanTruth::objects
   int detection = -1;  // into SceneRecognitionResult::objects, −1: missed / rejected
