@@ -145,7 +145,6 @@ void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clus
 }
 
 std::vector<double> pcl_cpu;
-
 std::vector<double> first_look_cpu;
 
 void BM_Table_AllObjects_FirstLookOnly(benchmark::State& state) {
@@ -153,7 +152,6 @@ void BM_Table_AllObjects_FirstLookOnly(benchmark::State& state) {
   state.SetLabel("peer: the same without second looks (remainders, twins, convex splits, joins "
                  "of clusters left unexplained)");
 }
-
 
 void BM_Table_AllObjects_PclClustering(benchmark::State& state) {
   RunTable(state, TableSegmentationOptions::Clustering::kPclKdTree, &pcl_cpu);

@@ -24,6 +24,29 @@
 #include "recogniser/pcl_convert.h"
 
 namespace sope {
+namespace internal {
+
+void PrincipalAxes(const std::vector<Eigen::Vector3f>& points, Eigen::Vector3d* centroid,
+                   Eigen::Matrix3d* axes, Eigen::Vector3d* variances) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3f& p : points) mean += p.cast<double>();
+  mean /= static_cast<double>(points.size());
+  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
+  for (const Eigen::Vector3f& p : points) {
+    const Eigen::Vector3d d = p.cast<double>() - mean;
+    covariance.noalias() += d * d.transpose();
+  }
+  covariance /= static_cast<double>(points.size());
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
+  *centroid = mean;
+  for (int c = 0; c < 3; ++c) {
+    axes->col(c) = solver.eigenvectors().col(2 - c);
+    (*variances)[c] = solver.eigenvalues()[2 - c];
+  }
+}
+
+}  // namespace internal
+
 namespace {
 
 constexpr int kMaxBezierOrder = 8;
@@ -129,26 +152,6 @@ inline void EvaluatePatch(const double* control, int m, int n, const double* bu,
       su[a] += dbu[i] * row[a];
       sv[a] += bu[i] * row_v[a];
     }
-  }
-}
-
-// Principal axes of `points` (columns, by decreasing variance) and their centroid.
-void PrincipalAxes(const std::vector<Eigen::Vector3f>& points, Eigen::Vector3d* centroid,
-                   Eigen::Matrix3d* axes, Eigen::Vector3d* variances) {
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (const Eigen::Vector3f& p : points) mean += p.cast<double>();
-  mean /= static_cast<double>(points.size());
-  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
-  for (const Eigen::Vector3f& p : points) {
-    const Eigen::Vector3d d = p.cast<double>() - mean;
-    covariance.noalias() += d * d.transpose();
-  }
-  covariance /= static_cast<double>(points.size());
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
-  *centroid = mean;
-  for (int c = 0; c < 3; ++c) {
-    axes->col(c) = solver.eigenvectors().col(2 - c);
-    (*variances)[c] = solver.eigenvalues()[2 - c];
   }
 }
 
@@ -258,7 +261,7 @@ PatchFrame PrincipalPatchFrame(const std::vector<Eigen::Vector3f>& points,
   PatchFrame frame;
   Eigen::Matrix3d axes;
   Eigen::Vector3d variances;
-  PrincipalAxes(points, &frame.origin, &axes, &variances);
+  internal::PrincipalAxes(points, &frame.origin, &axes, &variances);
   const Eigen::Vector3d& origin = frame.origin;
   frame.e1 = axes.col(0);
   frame.e3 = axes.col(2);
@@ -771,7 +774,7 @@ void AppendMetricSizeBlock(const PreprocessedCloud& view, std::vector<float>* co
   const size_t n = normalised.size();
   Eigen::Vector3d centroid, variances;
   Eigen::Matrix3d axes;
-  PrincipalAxes(normalised.points, &centroid, &axes, &variances);
+  internal::PrincipalAxes(normalised.points, &centroid, &axes, &variances);
   float extents[3];
   std::vector<float> projection(n);
   for (int a = 0; a < 3; ++a) {

@@ -150,4 +150,12 @@ BezierPatch FitBezierPatch(const std::vector<Eigen::Vector3f>& points, int order
 // p(u, v) = Σ_ij B_i^m(u) B_j^n(v) k_ij (eq. 4.4).
 Eigen::Vector3f EvaluateBezier(const BezierPatch& patch, float u, float v);
 
+namespace internal {
+// Principal axes of `points` (columns, by decreasing variance), their centroid and the
+// variances along them (of the covariance normalised by the count). At least one point.
+// The Bezier frame's PCA; also the scene recogniser's (model axes, backdrop planes).
+void PrincipalAxes(const std::vector<Eigen::Vector3f>& points, Eigen::Vector3d* centroid,
+                   Eigen::Matrix3d* axes, Eigen::Vector3d* variances);
+}  // namespace internal
+
 }  // namespace sope

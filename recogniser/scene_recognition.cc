@@ -9,15 +9,16 @@
 #include <set>
 #include <unordered_map>
 
-#include <Eigen/Eigenvalues>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
 #include "core/error.h"
 #include "core/stopwatch.h"
+#include "recogniser/features.h"
 #include "recogniser/pose.h"
 #include "recogniser/preprocess.h"
+#include "recogniser/stages.h"
 
 namespace sope {
 namespace {
@@ -93,26 +94,23 @@ bool IsBackdrop(const ObjectCluster& cluster, double max_diameter,
   if (options.backdrop_planar_fraction <= 0 || cluster.cloud.size() < 3) return false;
   const std::vector<Eigen::Vector3f>& points = cluster.cloud.points;
   const size_t step = std::max<size_t>(1, points.size() / 5000);  // an even subsample
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  size_t n = 0;
-  for (size_t i = 0; i < points.size(); i += step, ++n) mean += points[i].cast<double>();
-  mean /= static_cast<double>(n);
-  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
-  for (size_t i = 0; i < points.size(); i += step) {
-    const Eigen::Vector3d d = points[i].cast<double>() - mean;
-    covariance += d * d.transpose();
-  }
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
-  const Eigen::Vector3d normal = solver.eigenvectors().col(0);
-  const Eigen::Vector3d major = solver.eigenvectors().col(2);
+  std::vector<Eigen::Vector3f> sample;
+  for (size_t i = 0; i < points.size(); i += step) sample.push_back(points[i]);
+  Eigen::Vector3d mean;
+  Eigen::Matrix3d axes;
+  Eigen::Vector3d variances;
+  internal::PrincipalAxes(sample, &mean, &axes, &variances);
+  const Eigen::Vector3d major = axes.col(0);
+  const Eigen::Vector3d normal = axes.col(2);
   double low = std::numeric_limits<double>::max(), high = -low;
   size_t on_plane = 0;
-  for (size_t i = 0; i < points.size(); i += step) {
-    const Eigen::Vector3d d = points[i].cast<double>() - mean;
+  for (const Eigen::Vector3f& p : sample) {
+    const Eigen::Vector3d d = p.cast<double>() - mean;
     low = std::min(low, d.dot(major));
     high = std::max(high, d.dot(major));
     on_plane += std::abs(d.dot(normal)) <= options.backdrop_plane_distance;
   }
+  const size_t n = sample.size();
   return high - low > options.backdrop_extent_factor * max_diameter &&
          static_cast<double>(on_plane) >= options.backdrop_planar_fraction * n;
 }
@@ -256,13 +254,9 @@ void AddClusterHypotheses(const SceneContext& ctx, int cluster, const PointCloud
 // The cluster's points as the recogniser's pose stages see them (pre-processed with the
 // database's options, canonical frame, projective grid); empty when too few points survive.
 std::optional<PoseQuery> ClusterPoseQuery(const SceneContext& ctx, const PointCloud& points) {
-  const PreprocessOptions& preprocess = ctx.database.options().preprocess;
   try {
-    const PreprocessedCloud pre = Preprocess(points, preprocess);
-    const float spacing =
-        static_cast<float>(preprocess.voxel_leaf > 0.0 ? preprocess.voxel_leaf : 0.004);
-    return MakePoseQuery(pre.cloud, pre.centroid, pre.radius, spacing,
-                         ctx.options.recognition.pose);
+    return PoseQueryOf(ctx.database, Preprocess(points, ctx.database.options().preprocess),
+                       ctx.options.recognition.pose);
   } catch (const Error&) {
     return std::nullopt;
   }
@@ -270,26 +264,12 @@ std::optional<PoseQuery> ClusterPoseQuery(const SceneContext& ctx, const PointCl
 
 constexpr size_t kTwinIcpPoints = 1500;
 
-// Principal axes of a model surface sample (model frame, columns, largest spread first).
-Eigen::Matrix3d PrincipalAxes(const PointCloud& surface) {
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (const Eigen::Vector3f& p : surface.points) mean += p.cast<double>();
-  mean /= std::max<size_t>(1, surface.size());
-  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
-  for (const Eigen::Vector3f& p : surface.points) {
-    const Eigen::Vector3d d = p.cast<double>() - mean;
-    covariance += d * d.transpose();
-  }
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
-  return solver.eigenvectors().rowwise().reverse();
-}
-
 // Twins of a cluster nothing explained: each of its first hypotheses turned half a turn
 // about each principal axis of its model (through the model's centre) — the poses a
 // view-based search confuses most (a drill on its side seen from its other side, a box
 // end for end) — ICP-refined on the cluster's points and put down on the table. Adds
 // them to the pool; false when it added none.
-bool AddTwinHypotheses(const SceneContext& ctx, int cluster, const PointCloud& points,
+bool AddTwinHypotheses(const SceneContext& ctx, const PointCloud& points,
                        const std::vector<int>& sources, HypothesisPool* pool) {
   if (sources.empty()) return false;
   const Stopwatch watch;
@@ -305,7 +285,10 @@ bool AddTwinHypotheses(const SceneContext& ctx, int cluster, const PointCloud& p
     const Suggestion& s = h.recognition.suggestions[0];
     const PointCloud& surface = ctx.scene_recogniser.ModelSurface(s.model, ctx.options.model_leaf);
     const Eigen::Vector3d centre = ctx.database.model(s.model).center;
-    const Eigen::Matrix3d axes = PrincipalAxes(surface);
+    if (surface.empty()) continue;
+    Eigen::Vector3d surface_centroid, variances;
+    Eigen::Matrix3d axes;  // the model's principal axes, largest spread first
+    internal::PrincipalAxes(surface.points, &surface_centroid, &axes, &variances);
     // ICP on an even subsample of the surface (a few thousand points fix a pose; the scene
     // verification then measures the fit on all of them).
     std::vector<Eigen::Vector3f> points, normals;
@@ -440,7 +423,7 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   return added;
 }
 
-// Clusters `to_split` split along their concave seams: each of the split_segments largest
+// Clusters `to_split` (each once) split along their concave seams: each of the split_segments largest
 // segments (of at least min_cluster_points points, and not the whole cluster) is
 // recognised alone and adds its hypotheses. True when that added hypotheses.
 bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_split,
@@ -449,7 +432,8 @@ bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_spl
   if (options.split_segments <= 0) return false;
   bool added = false;
   for (size_t c = 0; c < ctx.clusters.size(); ++c) {
-    if (!to_split[c]) continue;
+    if (!to_split[c] || pool->split_tried[c]) continue;
+    pool->split_tried[c] = 1;
     const PointCloud& points = ctx.clusters[c].cloud;
     const Stopwatch watch;
     const std::vector<std::vector<int>> segments = ConvexSegments(points, options.split);
@@ -495,7 +479,7 @@ bool AddTwinsOfUnexplained(const SceneContext& ctx, const std::vector<Hypothesis
       return evidence[a].model_fit > evidence[b].model_fit;
     });
     if (static_cast<int>(candidates.size()) > per_cluster) candidates.resize(per_cluster);
-    added |= AddTwinHypotheses(ctx, static_cast<int>(c), ctx.clusters[c].cloud, candidates, pool);
+    added |= AddTwinHypotheses(ctx, ctx.clusters[c].cloud, candidates, pool);
   }
   return added;
 }
@@ -545,11 +529,10 @@ std::vector<uint8_t> ExplainedMask(size_t num_scene_points,
   return explained;
 }
 
-// Per cluster, the fraction of its thinned points no accepted hypothesis explains.
+// Per cluster, the fraction of its thinned points `explained` (ExplainedMask) leaves out.
 std::vector<double> UnexplainedFractions(const SceneContext& ctx,
-                                         const std::vector<HypothesisEvidence>& evidence) {
+                                         const std::vector<uint8_t>& explained) {
   const ThinnedScene& scene = ctx.scene;
-  const std::vector<uint8_t> explained = ExplainedMask(scene.points.size(), evidence);
   std::vector<int> thinned(ctx.clusters.size(), 0), left(ctx.clusters.size(), 0);
   for (size_t j = 0; j < scene.points.size(); ++j) {
     ++thinned[scene.cluster_of[j]];
@@ -562,23 +545,20 @@ std::vector<double> UnexplainedFractions(const SceneContext& ctx,
   return fractions;
 }
 
-// Remainders: clusters the accepted hypotheses leave largely unexplained (at least
-// remainder_fraction of their thinned points) are recognised again on what is left.
-// True when that added hypotheses.
-bool AddRemainderHypotheses(const SceneContext& ctx,
-                            const std::vector<HypothesisEvidence>& evidence, HypothesisPool* pool) {
+// Remainders: clusters with an accepted hypothesis that leave at least remainder_fraction
+// of their thinned points unexplained (`left`, UnexplainedFractions of `explained`) are
+// recognised again on what is left, once each. True when that added hypotheses.
+bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>& explained,
+                            const std::vector<double>& left, const std::vector<bool>& has_accepted,
+                            HypothesisPool* pool) {
   const SceneRecognitionOptions& options = ctx.options;
+  if (options.remainder_fraction <= 0) return false;
   const std::vector<ObjectCluster>& clusters = ctx.clusters;
   const ThinnedScene& scene = ctx.scene;
-  const std::vector<uint8_t> explained = ExplainedMask(scene.points.size(), evidence);
-  const std::vector<double> left = UnexplainedFractions(ctx, evidence);
   bool added = false;
   for (size_t c = 0; c < clusters.size(); ++c) {
-    bool any_accepted = false;
-    for (size_t h = 0; h < evidence.size(); ++h) {
-      any_accepted |= evidence[h].accepted && pool->hypotheses[h].cluster == static_cast<int>(c);
-    }
-    if (!any_accepted || pool->remainder_tried[c]) continue;  // the whole cluster was tried
+    // No accepted hypothesis: the whole cluster was tried.
+    if (!has_accepted[c] || pool->remainder_tried[c]) continue;
     if (left[c] < options.remainder_fraction) continue;
     PointCloud remainder;
     for (const int i : clusters[c].indices) {
@@ -855,26 +835,23 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
   // the twins of their hypotheses and the joins with what is near them; the convex
   // segments of both kinds (touching objects).
   for (int round = 0; round < options.second_look_rounds; ++round) {
-    // Unexplained: no accepted hypothesis of its own and most of its points unexplained
-    // (not, say, a handle a joined hypothesis of its neighbour explains).
-    const std::vector<double> left = UnexplainedFractions(ctx, evidence);
-    std::vector<bool> unexplained(clusters.size());
-    for (size_t c = 0; c < clusters.size(); ++c) unexplained[c] = left[c] > 0.5;
+    const std::vector<uint8_t> explained = ExplainedMask(ctx.scene.points.size(), evidence);
+    const std::vector<double> left = UnexplainedFractions(ctx, explained);
+    std::vector<bool> has_accepted(clusters.size(), false);
     for (size_t h = 0; h < evidence.size(); ++h) {
-      if (evidence[h].accepted) unexplained[pool.hypotheses[h].cluster] = false;
+      if (evidence[h].accepted) has_accepted[pool.hypotheses[h].cluster] = true;
     }
-    std::vector<bool> to_split = unexplained;
-    if (options.remainder_fraction > 0) {
-      for (size_t c = 0; c < clusters.size(); ++c) {
-        if (left[c] >= options.remainder_fraction) to_split[c] = true;
-      }
-    }
+    // Unexplained: no accepted hypothesis of its own and most of its points unexplained
+    // (not, say, a handle a joined hypothesis of its neighbour explains). Split: those, and
+    // the clusters whose remainder is large.
+    std::vector<bool> unexplained(clusters.size()), to_split(clusters.size());
     for (size_t c = 0; c < clusters.size(); ++c) {
-      to_split[c] = to_split[c] && !pool.split_tried[c];
-      if (to_split[c]) pool.split_tried[c] = 1;
+      unexplained[c] = !has_accepted[c] && left[c] > 0.5;
+      to_split[c] = unexplained[c] ||
+                    (options.remainder_fraction > 0 && left[c] >= options.remainder_fraction);
     }
     const Stopwatch look;
-    bool added = options.remainder_fraction > 0 && AddRemainderHypotheses(ctx, evidence, &pool);
+    bool added = AddRemainderHypotheses(ctx, explained, left, has_accepted, &pool);
     const double t_remainder = look.WallMs();
     added |= AddTwinsOfUnexplained(ctx, evidence, unexplained, &pool);
     const double t_twins = look.WallMs();

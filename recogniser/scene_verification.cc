@@ -150,7 +150,7 @@ Explanation ExplainScene(const PointCloud& scene, const VisibleModel& visible,
 struct LevelExplanations {
   Explanation instance;
   Explanation class_level;
-  bool class_allowed = false;  // class evidence and violations allowed a class-level test
+  bool class_allowed = false;  // class_level was computed (it failed at instance level)
   double class_fit = 0.0;
 };
 
@@ -231,20 +231,20 @@ HypothesisEvidence EvaluateHypothesis(const PointCloud& scene, const SceneHypoth
       ExplainScene(scene, visible, rotation, translation, options, options.inlier_distance);
   const int unoccluded = std::max(1, e.visible - e.occluded - e.empty);
   e.violation_fraction = static_cast<double>(e.violations) / unoccluded;
-  // Class level: the same tests at the class inlier distance (another instance's surface
-  // lies some millimetres off the database model's), with their own thresholds.
-  levels->class_allowed = hypothesis.class_probability >= options.min_class_probability &&
-                          e.violation_fraction <= options.class_max_violation_fraction;
   const std::vector<uint8_t> nothing_taken;
+  levels->class_allowed = false;
   Judge(*levels, options, nothing_taken, &e);
-  if (levels->class_allowed && !e.passes) {
+  // Class level, for a hypothesis that fails at instance level: the same tests at the class
+  // inlier distance (another instance's surface lies some millimetres off the database
+  // model's), with their own thresholds.
+  if (!e.passes && hypothesis.class_probability >= options.min_class_probability &&
+      e.violation_fraction <= options.class_max_violation_fraction) {
+    levels->class_allowed = true;
     levels->class_level = ExplainScene(scene, visible, rotation, translation, options,
                                        options.class_inlier_distance);
     levels->class_fit =
         std::min(1.0, static_cast<double>(levels->class_level.fitting) / unoccluded);
     Judge(*levels, options, nothing_taken, &e);
-  } else {
-    levels->class_allowed = false;  // passed at instance level: no class-level look needed
   }
   return e;
 }

@@ -255,18 +255,23 @@ StageContext::StageContext(const Database& db, const ViewDescription& query,
       coarse_(coarse),
       log_query_radius_(std::log(std::max(1e-6f, query.preprocessed.radius))) {}
 
+PoseQuery PoseQueryOf(const Database& db, const PreprocessedCloud& preprocessed,
+                      const PoseOptions& options) {
+  const PreprocessOptions& preprocess = db.options().preprocess;
+  const float spacing =
+      static_cast<float>(preprocess.voxel_leaf > 0.0 ? preprocess.voxel_leaf : 0.004);
+  return MakePoseQuery(preprocessed.cloud, preprocessed.centroid, preprocessed.radius, spacing,
+                       options);
+}
+
 Rigid3d StageContext::cam_from_canonical() const {
   return Rigid3d(query_.cam_from_canonical, Eigen::Vector3d::Zero());
 }
 
 const PoseQuery& StageContext::pose_query(const PoseOptions& options) {
   if (!have_pose_query_) {
-    const PreprocessOptions& preprocess = db_.options().preprocess;
-    const float spacing =
-        static_cast<float>(preprocess.voxel_leaf > 0.0 ? preprocess.voxel_leaf : 0.004);
     // The described query is already canonical: its sensor frame is the canonical frame.
-    pose_query_ = MakePoseQuery(query_.preprocessed.cloud, query_.preprocessed.centroid,
-                                query_.preprocessed.radius, spacing, options);
+    pose_query_ = PoseQueryOf(db_, query_.preprocessed, options);
     have_pose_query_ = true;
   }
   return pose_query_;

@@ -38,6 +38,11 @@ namespace sope {
 // were described (the database's stored options). Throws sope::Error on an unusable cloud
 // or features of other dimensions than the database's.
 ViewDescription DescribeQuery(const Database& db, const PointCloud& cloud);
+// The pose query (roll, ICP, verification; recogniser/pose.h MakePoseQuery) of a cloud
+// pre-processed with the database's options, at the database's voxel leaf (4 mm when it
+// does not thin).
+PoseQuery PoseQueryOf(const Database& db, const PreprocessedCloud& preprocessed,
+                      const PoseOptions& options);
 
 // Coarse stage output.
 struct CoarseResult {
