@@ -330,7 +330,8 @@ std::vector<std::pair<int, int>> NeighbouringLabels(const ThinnedScene& scene,
   const float distance2 = static_cast<float>(distance * distance);
   std::unordered_map<uint64_t, std::vector<int>> cells;
   for (size_t j = 0; j < scene.points.size(); ++j) {
-    if (label[j] >= 0) cells[VoxelKey(scene.points.points[j], inv_cell)].push_back(static_cast<int>(j));
+    if (label[j] < 0) continue;
+    cells[VoxelKey(scene.points.points[j], inv_cell)].push_back(static_cast<int>(j));
   }
   std::vector<uint8_t> near(static_cast<size_t>(num_labels) * num_labels, 0);
   for (size_t j = 0; j < scene.points.size(); ++j) {
@@ -423,9 +424,10 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   return added;
 }
 
-// Clusters `to_split` (each once) split along their concave seams: each of the split_segments largest
-// segments (of at least min_cluster_points points, and not the whole cluster) is
-// recognised alone and adds its hypotheses. True when that added hypotheses.
+// Clusters `to_split` (each once) split along their concave seams: each of the
+// split_segments largest segments (of at least min_cluster_points points, and not the
+// whole cluster) is recognised alone and adds its hypotheses. True when that added
+// hypotheses.
 bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_split,
                         HypothesisPool* pool) {
   const SceneRecognitionOptions& options = ctx.options;
@@ -589,7 +591,8 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
                   "accepted={} class_level={} why={}",
                   hypotheses[h].cluster, c.x(), c.y(), c.z(), s.class_name, s.model_name,
                   s.score, ClassProbability(hypotheses[h].recognition, s.class_index),
-                  hypotheses[h].flipped, hypotheses[h].twin, e.model_fit, e.local_explained, e.violation_fraction,
+                  hypotheses[h].flipped, hypotheses[h].twin, e.model_fit, e.local_explained,
+                  e.violation_fraction,
                   e.visible, e.explained.size(), e.duplicates, e.violations, e.passes,
                   e.accepted, e.class_level,
                   RejectionReason(e, ctx.options.verification));

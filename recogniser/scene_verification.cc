@@ -184,7 +184,8 @@ void UseExplanation(const Explanation& explanation, double fit, double local_exp
   e->local_explained = local_explained;
   e->fitting = explanation.fitting;
   e->local = explanation.local;
-  e->visible_fraction = e->visible > 0 ? static_cast<double>(explanation.fitting) / e->visible : 0.0;
+  e->visible_fraction =
+      e->visible > 0 ? static_cast<double>(explanation.fitting) / e->visible : 0.0;
   e->explained = explanation.explained;
 }
 
@@ -254,7 +255,8 @@ HypothesisEvidence EvaluateHypothesis(const PointCloud& scene, const SceneHypoth
 // `taken` (per scene point: explained by an accepted hypothesis) and `done` (per
 // hypothesis) carry over between calls.
 void SelectGreedily(const std::vector<SceneHypothesis>& hypotheses,
-                    const SceneVerificationOptions& options, std::vector<HypothesisEvidence>* evidence,
+                    const SceneVerificationOptions& options,
+                    std::vector<HypothesisEvidence>* evidence,
                     std::vector<uint8_t>* taken_points, std::vector<uint8_t>* done_hypotheses) {
   std::vector<HypothesisEvidence>& out = *evidence;
   std::vector<uint8_t>& taken = *taken_points;
