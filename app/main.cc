@@ -10,6 +10,7 @@
 #include <spdlog/spdlog.h>
 
 #include "app/commands.h"
+#include "core/allocator.h"
 #include "core/error.h"
 #include "core/file_util.h"
 
@@ -53,6 +54,7 @@ void PrintUsage(std::FILE* stream) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  sope::ConfigureAllocatorForFrames();
   spdlog::set_default_logger(spdlog::stderr_color_mt("sope"));
   spdlog::set_pattern("%^%l%$: %v");
   if (argc < 2 || std::strcmp(argv[1], "--help") == 0 || std::strcmp(argv[1], "-h") == 0) {

@@ -32,7 +32,7 @@ function(sope_add_test)
   cmake_parse_arguments(ARG "PER_CASE" "NAME" "SRCS;DEPS;LABELS;SANITIZER_ENV" ${ARGN})
   add_executable(${ARG_NAME} ${ARG_SRCS})
   target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} sope_test_support GTest::gtest
-                        GTest::gtest_main)
+                        sope_test_main)
   # Test files are mostly GoogleTest macros and set-up; the work they time is in the
   # libraries, which keep the build type's optimisation. -O1 compiles them in ~2/3 of
   # -O3's time (README "Build and test time"); a test binary's several files compile as

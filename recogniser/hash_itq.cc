@@ -42,7 +42,7 @@ std::unique_ptr<HashFunction> TrainItq(TrainingContext& context) {
                                               -Eigen::MatrixXf::Ones(rotated.rows(), bits));
     // Procrustes: Bᵀ V = U_B Σ U_Aᵀ  →  R = U_A U_Bᵀ.
     const Eigen::MatrixXd cross = (signs.transpose() * embedded).cast<double>();
-    Eigen::BDCSVD<Eigen::MatrixXd> svd(cross, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Eigen::JacobiSVD<Eigen::MatrixXd> svd(cross, Eigen::ComputeFullU | Eigen::ComputeFullV);
     rotation = svd.matrixV() * svd.matrixU().transpose();
   }
   const Eigen::MatrixXf rotated = embedded * rotation.cast<float>();

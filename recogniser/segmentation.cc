@@ -6,10 +6,10 @@
 
 #include <Eigen/Eigenvalues>
 #include <fmt/format.h>
-#include <pcl/ModelCoefficients.h>
+#include <pcl/sample_consensus/ransac.h>
+#include <pcl/sample_consensus/sac_model_plane.h>
 #include <pcl/search/kdtree.h>
 #include <pcl/segmentation/extract_clusters.h>
-#include <pcl/segmentation/sac_segmentation.h>
 
 #include "core/error.h"
 #include "core/stopwatch.h"
@@ -200,23 +200,24 @@ TablePlane FitTablePlane(const PointCloud& cloud, const std::vector<int>& band,
     const Eigen::Vector3f& p = cloud.points[band[k]];
     sample->push_back(pcl::PointXYZ(p.x(), p.y(), p.z()));
   }
-  pcl::SACSegmentation<pcl::PointXYZ> sac;
-  sac.setModelType(pcl::SACMODEL_PLANE);
-  sac.setMethodType(pcl::SAC_RANSAC);
-  sac.setDistanceThreshold(options.plane_distance);
-  sac.setMaxIterations(options.plane_iterations);
-  sac.setOptimizeCoefficients(false);
-  sac.setInputCloud(sample);
-  pcl::PointIndices sample_inliers;
-  pcl::ModelCoefficients coefficients;
-  sac.segment(sample_inliers, coefficients);
+  // RANSAC with the plane model alone, as pcl::SACSegmentation(SACMODEL_PLANE, SAC_RANSAC)
+  // runs it (same seeds, probability 0.99, no coefficient refinement): SACSegmentation
+  // instantiates every model and estimator of sample_consensus here (PCL_NO_PRECOMPILE),
+  // which was ~2 min of this file's compile.
   TablePlane plane;
-  if (coefficients.values.size() != 4) return plane;
-  Eigen::Vector3f normal(coefficients.values[0], coefficients.values[1], coefficients.values[2]);
+  if (sample->size() < 3) return plane;
+  const auto model = std::make_shared<pcl::SampleConsensusModelPlane<pcl::PointXYZ>>(sample);
+  pcl::RandomSampleConsensus<pcl::PointXYZ> ransac(model, options.plane_distance);
+  ransac.setMaxIterations(options.plane_iterations);
+  Eigen::VectorXf coefficients;
+  if (!ransac.computeModel(0)) return plane;
+  ransac.getModelCoefficients(coefficients);
+  if (coefficients.size() != 4) return plane;
+  Eigen::Vector3f normal(coefficients[0], coefficients[1], coefficients[2]);
   const float norm = normal.norm();
   if (!(norm > 0 && std::isfinite(norm))) return plane;
   plane.normal = normal / norm;
-  plane.offset = coefficients.values[3] / norm;
+  plane.offset = coefficients[3] / norm;
   std::vector<int> inliers;
   for (int round = 0; round < 2; ++round) {  // refit on all raw inliers, twice
     inliers.clear();

@@ -534,7 +534,8 @@ struct VirtualRig::Impl {
   std::vector<uint8_t> response_bin_count;
   uint32_t response_first_bin = 0;
   // Scratch of Capture, kept so that a sequence of captures does not fault in fresh pages.
-  cv::Mat capture_pattern, capture_linear;
+  // The blurs write to scratch of their own rather than in place (the same values).
+  cv::Mat capture_pattern, capture_linear, capture_pattern_blurred, capture_linear_blurred;
   void BuildResponseBins();
   uint8_t Quantise(float value) const;
   std::mt19937_64 noise_engine;
@@ -829,14 +830,16 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
     projector_image.copyTo(pattern);
     if (response) pattern.forEach<float>([&](float& value, const int*) { value = shown(value); });
   }
+  const cv::Mat* shown_pattern = &pattern;
   if (d.options.defocus_sigma_px > 0.0) {
-    cv::GaussianBlur(pattern, pattern, cv::Size(), d.options.defocus_sigma_px,
+    cv::GaussianBlur(pattern, d.capture_pattern_blurred, cv::Size(), d.options.defocus_sigma_px,
                      d.options.defocus_sigma_px, cv::BORDER_REPLICATE);
+    shown_pattern = &d.capture_pattern_blurred;
   }
   const int width = d.calibration.camera.width, height = d.calibration.camera.height;
-  cv::Mat& linear = d.capture_linear;
-  linear.create(height, width, CV_32FC1);
-  const float* pattern_data = pattern.ptr<float>(0);
+  cv::Mat& sampled = d.capture_linear;
+  sampled.create(height, width, CV_32FC1);
+  const float* pattern_data = shown_pattern->ptr<float>(0);
   const int stride = projector.width;
   cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
     constexpr float kFraction = 1.0f / 65535.0f;
@@ -844,7 +847,7 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
       const std::vector<uint32_t>& start = d.row_start[y];
       const LitSample* samples = d.row_samples[y].data();
       const float* ambient = d.ambient.ptr<float>(y);
-      float* out = linear.ptr<float>(y);
+      float* out = sampled.ptr<float>(y);
       for (int x = 0; x < width; ++x) {
         float sum = ambient[x];
         for (uint32_t s = start[x]; s < start[x + 1]; ++s) {
@@ -859,10 +862,13 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
       }
     }
   });
+  const cv::Mat* linear_image = &sampled;
   if (d.options.camera_blur_sigma_px > 0.0) {
-    cv::GaussianBlur(linear, linear, cv::Size(), d.options.camera_blur_sigma_px,
+    cv::GaussianBlur(sampled, d.capture_linear_blurred, cv::Size(), d.options.camera_blur_sigma_px,
                      d.options.camera_blur_sigma_px, cv::BORDER_REPLICATE);
+    linear_image = &d.capture_linear_blurred;
   }
+  const cv::Mat& linear = *linear_image;
 
   const uint64_t call_seed = d.noise_engine();
   const bool noisy = d.options.read_noise > 0.0 || d.options.shot_noise > 0.0;
