@@ -2,9 +2,15 @@
 # libFuzzer instrumentation (SOPE_SANITIZE, SOPE_FUZZ in the top-level CMakeLists.txt).
 
 # ccache when installed, unless a launcher was given (-DCMAKE_CXX_COMPILER_LAUNCHER=...).
+# CCACHE_BASEDIR: paths under the source tree are hashed relative to it, so a clone at
+# another path (CI's checkout, a second worktree) reuses the cache; the sloppiness lets
+# ccache cache the files compiled with the tests' precompiled header (SOPE_TEST_PCH).
 find_program(CCACHE_PROGRAM ccache)
 if(CCACHE_PROGRAM AND NOT CMAKE_CXX_COMPILER_LAUNCHER)
-  set(CMAKE_CXX_COMPILER_LAUNCHER "${CCACHE_PROGRAM}")
+  set(CMAKE_CXX_COMPILER_LAUNCHER
+      "${CMAKE_COMMAND};-E;env;CCACHE_BASEDIR=${PROJECT_SOURCE_DIR}"
+      "CCACHE_SLOPPINESS=pch_defines,time_macros"
+      "${CCACHE_PROGRAM}")
 endif()
 
 # The linker: lld, else gold, else the default (GNU ld). Linking the ~30 programs with

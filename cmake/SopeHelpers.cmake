@@ -25,6 +25,38 @@ if(SOPE_SANITIZE)
 else()
   set(SOPE_TEST_TIMEOUT_SCALE 1)
 endif()
+# The test files' flags (see sope_add_test).
+function(sope_test_compile_options target)
+  if(SOPE_TEST_OPTIMIZATION)
+    # (GCC 12 at -O1 reports Eigen's AVX-512 packets, _mm512_undefined_pd in
+    # avx512fintrin.h, as uninitialised: a false positive that floods the log.)
+    target_compile_options(${target} PRIVATE ${SOPE_TEST_OPTIMIZATION}
+                           $<$<CXX_COMPILER_ID:GNU>:-Wno-uninitialized>
+                           $<$<CXX_COMPILER_ID:GNU>:-Wno-maybe-uninitialized>)
+  endif()
+endfunction()
+
+# One precompiled header for every test binary: GoogleTest, Eigen, OpenCV, nlohmann-json
+# and fmt, which most test files include and which were most of their compile time (a
+# test file: ~7 of its ~9 s parsing headers). Built once with the test files' flags and
+# reused (REUSE_FROM) by every test target; a target whose flags or macros differ (e.g.
+# PCL_NO_PRECOMPILE) has GCC fall back to the headers themselves, as before.
+option(SOPE_TEST_PCH "Compile the tests with one shared precompiled header" ON)
+function(sope_test_pch_target out)
+  if(NOT TARGET sope_test_pch)
+    add_library(sope_test_pch STATIC ${PROJECT_SOURCE_DIR}/tests/test_pch.cc)
+    target_link_libraries(sope_test_pch PRIVATE sope_core GTest::gtest
+                          nlohmann_json::nlohmann_json fmt::fmt)
+    sope_test_compile_options(sope_test_pch)
+    target_precompile_headers(sope_test_pch PRIVATE
+      <algorithm> <cmath> <cstdint> <cstdio> <filesystem> <fstream> <functional> <limits>
+      <map> <memory> <optional> <random> <sstream> <string> <vector>
+      <gtest/gtest.h> <Eigen/Core> <Eigen/Geometry> <opencv2/core.hpp>
+      <opencv2/imgproc.hpp> <nlohmann/json.hpp> <fmt/format.h>)
+  endif()
+  set(${out} sope_test_pch PARENT_SCOPE)
+endfunction()
+
 function(sope_add_test)
   if(NOT SOPE_BUILD_TESTS)
     return()
@@ -33,17 +65,15 @@ function(sope_add_test)
   add_executable(${ARG_NAME} ${ARG_SRCS})
   target_link_libraries(${ARG_NAME} PRIVATE ${ARG_DEPS} sope_test_support GTest::gtest
                         sope_test_main)
+  if(SOPE_TEST_PCH)
+    sope_test_pch_target(pch)
+    target_precompile_headers(${ARG_NAME} REUSE_FROM ${pch})
+  endif()
   # Test files are mostly GoogleTest macros and set-up; the work they time is in the
   # libraries, which keep the build type's optimisation. -O1 compiles them in ~2/3 of
   # -O3's time (README "Build and test time"); a test binary's several files compile as
   # one (unity build), so their common headers are parsed once.
-  if(SOPE_TEST_OPTIMIZATION)
-    # (GCC 12 at -O1 reports Eigen's AVX-512 packets, _mm512_undefined_pd in
-    # avx512fintrin.h, as uninitialised: a false positive that floods the log.)
-    target_compile_options(${ARG_NAME} PRIVATE ${SOPE_TEST_OPTIMIZATION}
-                           $<$<CXX_COMPILER_ID:GNU>:-Wno-uninitialized>
-                           $<$<CXX_COMPILER_ID:GNU>:-Wno-maybe-uninitialized>)
-  endif()
+  sope_test_compile_options(${ARG_NAME})
   list(LENGTH ARG_SRCS source_count)
   if(source_count GREATER 1)
     set_target_properties(${ARG_NAME} PROPERTIES UNITY_BUILD ON UNITY_BUILD_BATCH_SIZE 0)
