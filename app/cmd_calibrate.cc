@@ -111,6 +111,51 @@ void CalibrateAndWrite(const BoardSpec& board, const CalibrationOptions& options
                CalibrationSidecarPath(out, ".residuals.png"));
 }
 
+// --camera and the flags of a live (or scripted virtual) capture of the board views.
+struct LiveBoardFlags {
+  std::string camera, record, projector_size, camera_size;
+  int views = 12;
+  cli::LiveRigFlags rig;
+
+  void Add(CLI::App& app, CLI::App* source, CLI::Option* frames_option) {
+    source->add_option("--camera", camera,
+                       "Capture live instead: /dev/videoN (V4L2 camera + projector window; "
+                       "Enter on stdin captures a board pose, q finishes) or virtual (scripted "
+                       "board poses on the virtual rig)")
+        ->excludes(frames_option);
+    app.add_option("--record", record,
+                   "--camera: where the board views are recorded (DIR/view_NNN frame sets; "
+                   "default CAL.views next to --out)");
+    app.add_option("--projector", projector_size,
+                   "--camera /dev/videoN: projector size WxH (one pattern pixel per projector "
+                   "pixel)");
+    app.add_option("--camera-size", camera_size, "--camera /dev/videoN: camera image size WxH");
+    app.add_option("--views", views, "--camera virtual: scripted board poses")
+        ->capture_default_str();
+  }
+
+  // Captures and records the board views; returns their frame-set directories.
+  std::vector<std::string> Capture(const BoardSpec& board, const std::string& out) const {
+    RigCalibration sizes = DefaultRigCalibration();  // the virtual rig's true calibration
+    if (camera != "virtual") {
+      SOPE_CHECK(!projector_size.empty() && !camera_size.empty(),
+                 "--camera {} needs --projector WxH and --camera-size WxH", camera);
+      cli::ParseSize(projector_size, "--projector", &sizes.projector.width,
+                     &sizes.projector.height);
+      cli::ParseSize(camera_size, "--camera-size", &sizes.camera.width, &sizes.camera.height);
+    }
+    SOPE_CHECK(views >= 3, "--views must be ≥ 3, got {}", views);
+    const std::string record_dir = record.empty() ? CalibrationSidecarPath(out, ".views") : record;
+    const std::vector<std::string> directories =
+        CaptureLiveViews(camera, board, sizes, rig, record_dir, views);
+    SOPE_CHECK(directories.size() >= 3,
+               "{} board pose(s) captured; calibration needs at least 3 (better 10-20 in "
+               "varied tilts)",
+               directories.size());
+    return directories;
+  }
+};
+
 }  // namespace
 
 int RunCalibrate(int argc, char** argv) {
@@ -137,23 +182,8 @@ int RunCalibrate(int argc, char** argv) {
                      "Frame sets (directories with frames.json), or directories whose "
                      "subdirectories are frame sets (e.g. what `sope simulate --board` wrote)")
           ->expected(1, -1);
-  std::string live_camera, record_dir, projector_size, camera_size;
-  int virtual_views = 12;
-  cli::LiveRigFlags live_flags;
-  source->add_option("--camera", live_camera,
-                 "Capture live instead: /dev/videoN (V4L2 camera + projector window; Enter "
-                 "on stdin captures a board pose, q finishes) or virtual (scripted board poses "
-                 "on the virtual rig)")
-      ->excludes(frames_option);
-  app.add_option("--record", record_dir,
-                 "--camera: where the board views are recorded (DIR/view_NNN frame sets; "
-                 "default CAL.views next to --out)");
-  app.add_option("--projector", projector_size,
-                 "--camera /dev/videoN: projector size WxH (one pattern pixel per projector "
-                 "pixel)");
-  app.add_option("--camera-size", camera_size, "--camera /dev/videoN: camera image size WxH");
-  app.add_option("--views", virtual_views, "--camera virtual: scripted board poses")
-      ->capture_default_str();
+  LiveBoardFlags live;
+  live.Add(app, source, frames_option);
   app.add_option("--board", board_text,
                  "Checkerboard COLSxROWSxSQUARE_M: COLS x ROWS = INNER corners (OpenCV "
                  "patternSize; a board of 10x7 squares is 9x6), square side in metres, "
@@ -198,7 +228,7 @@ int RunCalibrate(int argc, char** argv) {
   // Board views decode per pixel (the corners' local homographies need no filled pixels).
   decoder_flags.consistency = false;
   decoder_flags.Add(app);
-  live_flags.Add(*app.add_option_group("live capture (--camera)"));
+  live.rig.Add(*app.add_option_group("live capture (--camera)"));
   logging.Add(app);
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
@@ -214,25 +244,8 @@ int RunCalibrate(int argc, char** argv) {
   options.num_threads = options.decoder.num_threads;
   options.Check();
 
-  std::vector<std::string> directories;
-  if (live_camera.empty()) {
-    directories = ExpandFrameSetDirectories(frame_arguments);
-  } else {
-    RigCalibration sizes = DefaultRigCalibration();  // the virtual rig's true calibration
-    if (live_camera != "virtual") {
-      SOPE_CHECK(!projector_size.empty() && !camera_size.empty(),
-                 "--camera {} needs --projector WxH and --camera-size WxH", live_camera);
-      cli::ParseSize(projector_size, "--projector", &sizes.projector.width,
-                     &sizes.projector.height);
-      cli::ParseSize(camera_size, "--camera-size", &sizes.camera.width, &sizes.camera.height);
-    }
-    SOPE_CHECK(virtual_views >= 3, "--views must be ≥ 3, got {}", virtual_views);
-    if (record_dir.empty()) record_dir = CalibrationSidecarPath(out, ".views");
-    directories = CaptureLiveViews(live_camera, board, sizes, live_flags, record_dir,
-                                    virtual_views);
-    SOPE_CHECK(directories.size() >= 3, "{} board pose(s) captured; calibration needs at least "
-               "3 (better 10-20 in varied tilts)", directories.size());
-  }
+  const std::vector<std::string> directories =
+      live.camera.empty() ? ExpandFrameSetDirectories(frame_arguments) : live.Capture(board, out);
   CalibrateAndWrite(board, options, directories, out);
   return 0;
 }

@@ -22,18 +22,49 @@ namespace sope {
 
 namespace {
 
+// The tabletop protocol's flags (issue 12).
+struct TableFlags {
+  bool table = false, procedural = false;
+  TableEvalOptions options;
+  std::vector<std::string> meshes;
+
+  void Add(CLI::App& app) {
+    app.add_flag("--table", table,
+                 "Tabletop protocol: table scenes of --min-objects..--max-objects objects (the "
+                 "database's model files, or --procedural unseen instances of its procedural "
+                 "classes) and --clutter unknown objects, scanned through the full virtual-rig "
+                 "pipeline and recognised in tabletop mode: detection recall/precision (model "
+                 "right, ADD-S < 10% diameter), class recall, pose errors, unknown rejection, "
+                 "per-stage ms. Writes DIR/report.md, report.json, rotation_errors.png, "
+                 "center_errors.png, scans/");
+    app.add_option("--scenes", options.scenes, "--table: scenes")->capture_default_str();
+    app.add_option("--min-objects", options.min_objects, "--table: objects per scene, least")
+        ->capture_default_str();
+    app.add_option("--max-objects", options.max_objects, "--table: objects per scene, most")
+        ->capture_default_str();
+    app.add_option("--clutter", options.clutter, "--table: unknown clutter objects per scene")
+        ->capture_default_str();
+    app.add_option("--table-mesh", meshes,
+                   "--table: mesh specs to draw scenes from (default: every model file of the "
+                   "database)");
+    app.add_flag("--procedural", procedural,
+                 "--table: procedural objects (unseen instances of the database's procedural "
+                 "classes) instead of mesh files");
+  }
+};
+
 // `sope eval --table`: the tabletop protocol (pipeline/table_eval.h).
 int RunTableEval(const std::string& db_path,
                  const std::vector<cli::BoundFlag<RecognitionOptions>>& recognition_flags,
-                 const RecognitionOptions& given, const EvalOptions& options, bool procedural,
-                 const std::vector<std::string>& table_meshes, TableEvalOptions table_options,
-                 const std::string& out) {
+                 const RecognitionOptions& given, const EvalOptions& options,
+                 const TableFlags& flags, const std::string& out) {
+  TableEvalOptions table_options = flags.options;
   const std::unique_ptr<Database> db = Database::Open(db_path);
   cli::ApplyGivenFlags(recognition_flags, given, &table_options.controller.recognition);
   table_options.seed = options.seed;
   table_options.adds_fraction = options.adds_fraction;
-  if (!procedural) {
-    table_options.meshes = table_meshes;
+  if (!flags.procedural) {
+    table_options.meshes = flags.meshes;
     if (table_options.meshes.empty()) {
       for (const ModelRecord& model : db->models()) {
         SOPE_CHECK(std::abs(model.scale - 1.0) < 1e-9,
@@ -67,6 +98,48 @@ void WriteBopEstimates(const EvalReport& report, const std::string& bop_csv) {
   }
   WriteBopCsv(bop_csv, estimates);
   spdlog::info("BOP results: {} estimates -> {}", estimates.size(), bop_csv);
+}
+
+// The instance or class protocol (recogniser/tools/evaluation.h).
+int RunProtocolEval(const std::string& db_path, const std::string& models_dir,
+                    const std::string& protocol_text, const std::string& method,
+                    const std::vector<cli::BoundFlag<RecognitionOptions>>& recognition_flags,
+                    const RecognitionOptions& given, EvalOptions options, const std::string& out,
+                    const std::string& bop_csv) {
+  options.protocol = protocol_text.empty()
+                         ? (models_dir.empty() ? EvalProtocol::kInstance : EvalProtocol::kClass)
+                         : EvalProtocolFromString(protocol_text);
+  SOPE_CHECK(options.protocol == EvalProtocol::kInstance || !models_dir.empty(),
+             "the class protocol needs --models DIR (held-out meshes of the database's classes)");
+  SOPE_CHECK(options.protocol == EvalProtocol::kClass || models_dir.empty(),
+             "--models is for the class protocol; the instance protocol queries the database's "
+             "own models");
+  const std::unique_ptr<Database> db = Database::Open(db_path);
+  if (method == "thesis") {
+    options.recognition = RecognitionOptions::ThesisPreset(db->hasher().method());
+  } else {
+    SOPE_CHECK(method == "sope", "unknown --method '{}' (sope or thesis)", method);
+  }
+  options.method_name = method;
+  cli::ApplyGivenFlags(recognition_flags, given, &options.recognition);
+  options.Check();
+
+  std::vector<std::string> skipped;
+  const std::vector<EvalModel> models = options.protocol == EvalProtocol::kInstance
+                                            ? InstanceModels(*db)
+                                            : HeldOutModels(*db, models_dir, &skipped);
+  for (const std::string& s : skipped) spdlog::warn("skipped {}", s);
+  EvalReport report;
+  {
+    cli::Progress progress("recognising queries", models.size() * options.queries_per_model);
+    report = Evaluate(*db, models, options, [&](int done, int) { progress.Update(done); });
+  }
+  report.skipped_models = skipped;
+  WriteEvalReport(report, out);
+  if (!bop_csv.empty()) WriteBopEstimates(report, bop_csv);
+  std::printf("%s\n", report.BriefReport().c_str());
+  spdlog::info("report: {}/report.md, report.json, confusion.png, pose_errors.png", out);
+  return 0;
 }
 
 }  // namespace
@@ -126,33 +199,10 @@ int RunEval(int argc, char** argv) {
   pattern_flags.Add(*patterns_group);
   app.add_option("--adds", options.adds_fraction, "ADD-S threshold, fraction of the diameter")
       ->capture_default_str();
+  TableFlags table;
+  table.Add(app);
   // Recognition options (--top, --pose-models, --flag-fraction, …; RecognitionOptions::
   // Fields()): bound to a scratch copy, and those given are applied over the method's.
-  // Tabletop protocol (issue 12).
-  bool table = false, procedural = false;
-  TableEvalOptions table_options;
-  std::vector<std::string> table_meshes;
-  app.add_flag("--table", table,
-               "Tabletop protocol: table scenes of --min-objects..--max-objects objects (the "
-               "database's model files, or --procedural unseen instances of its procedural "
-               "classes) and --clutter unknown objects, scanned through the full virtual-rig "
-               "pipeline and recognised in tabletop mode: detection recall/precision (model "
-               "right, ADD-S < 10% diameter), class recall, pose errors, unknown rejection, "
-               "per-stage ms. Writes DIR/report.md, report.json, rotation_errors.png, "
-               "center_errors.png, scans/");
-  app.add_option("--scenes", table_options.scenes, "--table: scenes")->capture_default_str();
-  app.add_option("--min-objects", table_options.min_objects, "--table: objects per scene, least")
-      ->capture_default_str();
-  app.add_option("--max-objects", table_options.max_objects, "--table: objects per scene, most")
-      ->capture_default_str();
-  app.add_option("--clutter", table_options.clutter, "--table: unknown clutter objects per scene")
-      ->capture_default_str();
-  app.add_option("--table-mesh", table_meshes,
-                 "--table: mesh specs to draw scenes from (default: every model file of the "
-                 "database)");
-  app.add_flag("--procedural", procedural,
-               "--table: procedural objects (unseen instances of the database's procedural "
-               "classes) instead of mesh files");
   RecognitionOptions given;
   const auto recognition_flags = cli::AddOptionFlags(app, &given, RecognitionOptions::Fields());
   logging.Add(app);
@@ -160,52 +210,17 @@ int RunEval(int argc, char** argv) {
   logging.Apply();
 
   if (patterns_group->count_all() > 0) {
-    SOPE_CHECK(options.through_scan || table,
+    SOPE_CHECK(options.through_scan || table.table,
                "pattern flags (--code, --periods, ...) are for scanned queries (--scan-pipeline "
                "or --table)");
     // Checked on the scanned protocols' projector, the virtual rig's.
     const CameraModel projector = DefaultRigCalibration().projector;
-    (table ? table_options.source.patterns : options.scan_patterns) =
+    (table.table ? table.options.source.patterns : options.scan_patterns) =
         pattern_flags.ToOptions(projector.width, projector.height);
   }
-  if (table) {
-    return RunTableEval(db_path, recognition_flags, given, options, procedural, table_meshes,
-                        table_options, out);
-  }
-  options.protocol = protocol_text.empty()
-                         ? (models_dir.empty() ? EvalProtocol::kInstance : EvalProtocol::kClass)
-                         : EvalProtocolFromString(protocol_text);
-  SOPE_CHECK(options.protocol == EvalProtocol::kInstance || !models_dir.empty(),
-             "the class protocol needs --models DIR (held-out meshes of the database's classes)");
-  SOPE_CHECK(options.protocol == EvalProtocol::kClass || models_dir.empty(),
-             "--models is for the class protocol; the instance protocol queries the database's "
-             "own models");
-  const std::unique_ptr<Database> db = Database::Open(db_path);
-  if (method == "thesis") {
-    options.recognition = RecognitionOptions::ThesisPreset(db->hasher().method());
-  } else {
-    SOPE_CHECK(method == "sope", "unknown --method '{}' (sope or thesis)", method);
-  }
-  options.method_name = method;
-  cli::ApplyGivenFlags(recognition_flags, given, &options.recognition);
-  options.Check();
-
-  std::vector<std::string> skipped;
-  const std::vector<EvalModel> models = options.protocol == EvalProtocol::kInstance
-                                            ? InstanceModels(*db)
-                                            : HeldOutModels(*db, models_dir, &skipped);
-  for (const std::string& s : skipped) spdlog::warn("skipped {}", s);
-  EvalReport report;
-  {
-    cli::Progress progress("recognising queries", models.size() * options.queries_per_model);
-    report = Evaluate(*db, models, options, [&](int done, int) { progress.Update(done); });
-  }
-  report.skipped_models = skipped;
-  WriteEvalReport(report, out);
-  if (!bop_csv.empty()) WriteBopEstimates(report, bop_csv);
-  std::printf("%s\n", report.BriefReport().c_str());
-  spdlog::info("report: {}/report.md, report.json, confusion.png, pose_errors.png", out);
-  return 0;
+  if (table.table) return RunTableEval(db_path, recognition_flags, given, options, table, out);
+  return RunProtocolEval(db_path, models_dir, protocol_text, method, recognition_flags, given,
+                         options, out, bop_csv);
 }
 
 }  // namespace sope
