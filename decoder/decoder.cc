@@ -259,43 +259,80 @@ void ComputeRobustBounds(int n, const Pixel* __restrict level_max,
   }
 }
 
-// How one axis treats bits whose margin is below the threshold ("weak" bits).
+// How one axis turns code words into coordinates, and treats bits whose margin is below
+// the threshold ("weak" bits).
 struct AxisFinish {
-  const float* lut = nullptr;  // code word → coordinate
-  bool gray = true;            // Gray code (else plain binary)
+  bool gray = true;  // Gray code (else plain binary)
   // Largest coordinate difference of two neighbouring code words: the coordinate step.
   float max_neighbour_gap = 1.0f;
+  // The code words' coordinates (CoordinateOfWord: computed, as a table read would be a
+  // gather per pixel and axis): the lowest bit and the projector size (0 and 1 for an
+  // uncoded axis).
+  uint32_t lowest_bit = 0;
+  uint32_t projector_size = 1;
 };
 
-// Coordinate of one axis of a pixel with weak bits (`weak` ≠ 0 on some axis). For a Gray
-// code the pixel may sit on the boundary between two neighbouring projector columns
-// (rows) c and c + 1, whose code words differ in exactly one bit — the one stripe edge
-// there, undecidable because the pixel straddles it. Both words are formed from the
-// decided bits; when they decode to neighbours the coordinate is their midpoint — the
-// boundary itself, within half a step of the truth — and otherwise the pixel is invalid
-// (`ok` false): a weak bit anywhere else is never guessed. The caller only asks for
-// `solid` pixels, whose decided bits all clear kSolidMarginFactor × the bit threshold:
-// where light is scarce a decided bit may be wrong too, and the boundary would be a guess.
-// A binary code flips a run of bits at once at many boundaries, where noise may decide
-// some of them either way; its weak bits always invalidate the pixel.
-struct AxisValue {
-  float coordinate;
-  bool ok;
-};
-inline AxisValue BoundaryCoordinate(const AxisFinish& axis, int code, int weak) {
-  if (weak == 0) return {axis.lut[code], true};
-  if (!axis.gray) return {kNaN, false};
-  const float a = axis.lut[code & ~weak];
-  const float b = axis.lut[code | weak];
-  const float gap = std::abs(a - b);
-  return {0.5f * (a + b), gap > 0.0f && gap <= axis.max_neighbour_gap};  // false for NaN
+AxisFinish MakeAxisFinish(const AxisPlan& axis) {
+  AxisFinish finish;
+  finish.gray = axis.code == PatternCode::kGray;
+  // Block centres of neighbouring codes are one block apart (the last, partial block's
+  // centre is closer); a little slack for float rounding.
+  finish.max_neighbour_gap = static_cast<float>(1 << axis.lowest_bit) * 1.001f;
+  if (axis.coded) {
+    finish.lowest_bit = static_cast<uint32_t>(axis.lowest_bit);
+    finish.projector_size = static_cast<uint32_t>(axis.projector_size);
+  } else {
+    finish.gray = false;  // words stay 0: CoordinateOfWord gives 0
+  }
+  return finish;
+}
+
+// Bit casts (std::bit_cast is C++20; GCC and Clang have the builtin, which unlike memcpy
+// keeps the decoder's loops vectorisable).
+inline uint32_t FloatBits(float value) { return __builtin_bit_cast(uint32_t, value); }
+inline float FloatFromBits(uint32_t bits) { return __builtin_bit_cast(float, bits); }
+
+// The projector coordinate of a code word (MakeCoordinateLut's table is made of these):
+// Gray → binary, then the centre of the coded block on the projector, NaN beyond it; in
+// plain integer operations so that the caller's loop vectorises (GCC 12 does not
+// vectorise a select on the comparison). Words have at most 16 bits; `gray_mask` is all
+// ones for a Gray code, 0 for binary; `nan_bits` are kNaN's. An uncoded axis passes size 1
+// and lowest bit 0: its words stay 0, whose coordinate is then 0.
+inline float CoordinateOfWord(uint32_t word, uint32_t gray_mask, uint32_t lowest_bit,
+                              uint32_t projector_size, uint32_t nan_bits) {
+  uint32_t binary = word;  // BinaryFromGray for 16-bit words
+  binary ^= binary >> 8;
+  binary ^= binary >> 4;
+  binary ^= binary >> 2;
+  binary ^= binary >> 1;
+  const uint32_t block = word ^ ((binary ^ word) & gray_mask);
+  const uint32_t start = block << lowest_bit;
+  const uint32_t end = std::min(start + (1u << lowest_bit), projector_size);
+  const float centre = 0.5f * static_cast<float>(start + end - 1);
+  // All ones when start < projector_size (both below 2^17).
+  const uint32_t on_projector =
+      ~static_cast<uint32_t>(static_cast<int32_t>(projector_size - 1 - start) >> 31);
+  return FloatFromBits((FloatBits(centre) & on_projector) | (nan_bits & ~on_projector));
 }
 
 // Validity, coordinates and confidence of n pixels from their code words, weak-bit masks
 // and weakest decided margins (in units of margin_scale × grey levels). Confidence is that
-// margin relative to the contrast, halved for a pixel resolved at a boundary. The first
-// pass is branch-free so that it vectorises (the table reads as gathers) and takes pixels
-// without weak bits; the second visits the few pixels with weak bits (BoundaryCoordinate).
+// margin relative to the contrast, halved for a pixel resolved at a boundary.
+//
+// Pixels with weak bits (margin below the threshold on some axis): for a Gray code the
+// pixel may sit on the boundary between two neighbouring projector columns (rows) c and
+// c + 1, whose code words differ in exactly one bit — the one stripe edge there,
+// undecidable because the pixel straddles it. Both words are formed from the decided bits;
+// when they decode to neighbours the coordinate is their midpoint — the boundary itself,
+// within half a step of the truth — and otherwise the pixel is invalid: a weak bit
+// anywhere else is never guessed. Only `solid` pixels are resolved, whose decided bits all
+// clear kSolidMarginFactor × the bit threshold: where light is scarce a decided bit may be
+// wrong too, and the boundary would be a guess. A binary code flips a run of bits at once
+// at many boundaries, where noise may decide some of them either way; its weak bits always
+// invalidate the pixel.
+//
+// Two branch-free passes that vectorise (the first takes each pixel's own word, the second
+// the boundary midpoint of its two candidate words where that resolves it).
 template <typename Margin, typename Wide>
 void FinishPixels(int n, const uint8_t* __restrict code_x_high,
                   const uint8_t* __restrict code_x_low, const uint8_t* __restrict code_y_high,
@@ -305,13 +342,23 @@ void FinishPixels(int n, const uint8_t* __restrict code_x_high,
                   const AxisFinish& axis_y, const Wide* __restrict contrast,
                   const Margin* __restrict margin, int min_contrast, int solid_margin,
                   float margin_scale, float* __restrict out_x, float* __restrict out_y,
-                  uint8_t* __restrict mask, float* __restrict confidence,
-                  uint8_t* __restrict boundary) {
-  const float* __restrict lut_x = axis_x.lut;
-  const float* __restrict lut_y = axis_y.lut;
+                  uint8_t* __restrict mask, float* __restrict confidence) {
+  const uint32_t gray_x = axis_x.gray ? ~0u : 0u, gray_y = axis_y.gray ? ~0u : 0u;
+  const bool boundary_x = axis_x.gray, boundary_y = axis_y.gray;
+  const float max_gap_x = axis_x.max_neighbour_gap, max_gap_y = axis_y.max_neighbour_gap;
+  const uint32_t low_x = axis_x.lowest_bit, size_x = axis_x.projector_size;
+  const uint32_t low_y = axis_y.lowest_bit, size_y = axis_y.projector_size;
+  const uint32_t nan_bits = FloatBits(kNaN);
+  const auto coordinate_x = [&](uint32_t word) {
+    return CoordinateOfWord(word, gray_x, low_x, size_x, nan_bits);
+  };
+  const auto coordinate_y = [&](uint32_t word) {
+    return CoordinateOfWord(word, gray_y, low_y, size_y, nan_bits);
+  };
+  // Pass 1: each pixel's own reading (valid without weak bits).
   for (int i = 0; i < n; ++i) {
-    const float x = lut_x[(code_x_high[i] << 8) | code_x_low[i]];
-    const float y = lut_y[(code_y_high[i] << 8) | code_y_low[i]];
+    const float x = coordinate_x((uint32_t{code_x_high[i]} << 8) | code_x_low[i]);
+    const float y = coordinate_y((uint32_t{code_y_high[i]} << 8) | code_y_low[i]);
     const int c = contrast[i];
     const int m = margin[i];
     const bool no_weak =
@@ -323,33 +370,36 @@ void FinishPixels(int n, const uint8_t* __restrict code_x_high,
     mask[i] = static_cast<uint8_t>(valid ? 255 : 0);
     const float relative =
         static_cast<float>(m) / (margin_scale * static_cast<float>(std::max(c, 1)));
-    confidence[i] = valid ? std::min(relative, 1.0f) : 0.0f;
-    // Candidates of the second pass: weak bits, enough contrast, solid decided bits.
-    boundary[i] = static_cast<uint8_t>(!no_weak & (c >= min_contrast) & (m >= solid_margin));
+    // valid ? min(relative, 1) : 0 — relative is finite and ≥ 0, so the product is exact
+    // (GCC 12 vectorises the product and not the select).
+    confidence[i] = std::min(relative, 1.0f) * (valid ? 1.0f : 0.0f);
   }
+  // Pass 2: the boundary reading of the pixels with weak bits (invalid after pass 1), kept
+  // where it resolves: the midpoint of the words with the weak bits 0 and 1 (the word's own
+  // coordinate on an axis without weak bits: 0.5 (x + x) = x).
   for (int i = 0; i < n; ++i) {
-    // Skip 8 pixels at a time while none is a candidate (the common case; on dark or
-    // speckled captures many pixels have weak bits, but few enough contrast).
-    if ((i & 7) == 0 && i + 8 <= n) {
-      uint64_t word = 0;
-      std::memcpy(&word, boundary + i, sizeof(word));
-      if (word == 0) {
-        i += 7;
-        continue;
-      }
-    }
-    if (boundary[i] == 0) continue;
-    const int weak_x = (weak_x_high[i] << 8) | weak_x_low[i];
-    const int weak_y = (weak_y_high[i] << 8) | weak_y_low[i];
-    const AxisValue vx = BoundaryCoordinate(axis_x, (code_x_high[i] << 8) | code_x_low[i], weak_x);
-    const AxisValue vy = BoundaryCoordinate(axis_y, (code_y_high[i] << 8) | code_y_low[i], weak_y);
-    if (!vx.ok || !vy.ok || std::isnan(vx.coordinate) || std::isnan(vy.coordinate)) continue;
-    out_x[i] = vx.coordinate;
-    out_y[i] = vy.coordinate;
-    mask[i] = 255;
-    const float relative = static_cast<float>(margin[i]) /
-                           (margin_scale * static_cast<float>(std::max<int>(contrast[i], 1)));
-    confidence[i] = 0.5f * std::min(relative, 1.0f);
+    const uint32_t word_x = (uint32_t{code_x_high[i]} << 8) | code_x_low[i];
+    const uint32_t word_y = (uint32_t{code_y_high[i]} << 8) | code_y_low[i];
+    const uint32_t weak_x = (uint32_t{weak_x_high[i]} << 8) | weak_x_low[i];
+    const uint32_t weak_y = (uint32_t{weak_y_high[i]} << 8) | weak_y_low[i];
+    const float ax = coordinate_x(word_x & ~weak_x), bx = coordinate_x(word_x | weak_x);
+    const float ay = coordinate_y(word_y & ~weak_y), by = coordinate_y(word_y | weak_y);
+    const float mid_x = 0.5f * (ax + bx), mid_y = 0.5f * (ay + by);
+    const float gap_x = std::abs(ax - bx), gap_y = std::abs(ay - by);
+    // Neighbours (false for NaN); an axis without weak bits is fine as it is.
+    const bool ok_x = (weak_x == 0) | (boundary_x & (gap_x > 0.0f) & (gap_x <= max_gap_x));
+    const bool ok_y = (weak_y == 0) | (boundary_y & (gap_y > 0.0f) & (gap_y <= max_gap_y));
+    const int c = contrast[i];
+    const int m = margin[i];
+    const bool resolved = ((weak_x | weak_y) != 0) & (c >= min_contrast) & (m >= solid_margin) &
+                          ok_x & ok_y & (mid_x == mid_x) & (mid_y == mid_y);
+    out_x[i] = resolved ? mid_x : out_x[i];
+    out_y[i] = resolved ? mid_y : out_y[i];
+    mask[i] = resolved ? uint8_t{255} : mask[i];
+    const float relative =
+        static_cast<float>(m) / (margin_scale * static_cast<float>(std::max(c, 1)));
+    const float halved = 0.5f * std::min(relative, 1.0f);
+    confidence[i] = resolved ? halved : confidence[i];
   }
 }
 
@@ -376,7 +426,6 @@ struct Workspace {
   alignas(64) uint8_t direct_dominates[kChunkPixels];
   alignas(64) uint8_t too_dark[kChunkPixels];
   alignas(64) float discard[kChunkPixels];  // coordinates of an axis that is not coded
-  alignas(64) uint8_t boundary[kChunkPixels];  // FinishPixels' second-pass candidates
 };
 
 template <typename Pixel>
@@ -505,26 +554,16 @@ class ChunkDecoder {
   template <typename Margin>
   void Finish(size_t begin, int n, const Margin* margin) {
     Workspace<Pixel>& ws = *workspace_;
-    static const float kUncodedLut[1] = {0.0f};  // code words of an uncoded axis stay 0
-    const AxisPlan& plan_x = plan_.axes[kAxisX];
-    const AxisPlan& plan_y = plan_.axes[kAxisY];
-    const auto axis_finish = [&](const AxisPlan& axis) {
-      AxisFinish finish;
-      finish.lut = axis.coded ? axis.coordinate_of_code.data() : kUncodedLut;
-      finish.gray = axis.code == PatternCode::kGray;
-      // Block centres of neighbouring codes are one block apart (the last, partial block's
-      // centre is closer); a little slack for float rounding.
-      finish.max_neighbour_gap = static_cast<float>(1 << axis.lowest_bit) * 1.001f;
-      return finish;
-    };
     FinishPixels(n, ws.code[kAxisX][kHigh], ws.code[kAxisX][kLow], ws.code[kAxisY][kHigh],
                  ws.code[kAxisY][kLow], ws.weak[kAxisX][kHigh], ws.weak[kAxisX][kLow],
-                 ws.weak[kAxisY][kHigh], ws.weak[kAxisY][kLow], axis_finish(plan_x),
-                 axis_finish(plan_y), ws.contrast, margin, thresholds_.min_contrast,
-                 kSolidMarginFactor * std::max(thresholds_.min_bit_margin, 1), static_cast<float>(thresholds_.margin_scale),
+                 ws.weak[kAxisY][kHigh], ws.weak[kAxisY][kLow], MakeAxisFinish(plan_.axes[kAxisX]),
+                 MakeAxisFinish(plan_.axes[kAxisY]), ws.contrast, margin,
+                 thresholds_.min_contrast,
+                 kSolidMarginFactor * std::max(thresholds_.min_bit_margin, 1),
+                 static_cast<float>(thresholds_.margin_scale),
                  outputs_.proj[kAxisX] ? outputs_.proj[kAxisX] + begin : ws.discard,
                  outputs_.proj[kAxisY] ? outputs_.proj[kAxisY] + begin : ws.discard,
-                 outputs_.mask + begin, outputs_.confidence + begin, ws.boundary);
+                 outputs_.mask + begin, outputs_.confidence + begin);
   }
 
   const DecodePlan& plan_;
@@ -719,25 +758,25 @@ cv::Mat ColorizeConfidence(const cv::Mat& confidence, const cv::Mat& mask) {
 
 }  // namespace
 
-std::vector<float> MakeCoordinateLut(PatternCode code, int bits, int lowest_bit,
-                                     int projector_size) {
+namespace {
+
+void CheckCodeLayout(int bits, int lowest_bit, int projector_size) {
   SOPE_CHECK(bits >= 1 && bits <= 16 && lowest_bit >= 0 && lowest_bit < bits && projector_size > 0,
              "invalid code layout: bits {}, lowest bit {}, projector size {}", bits, lowest_bit,
              projector_size);
-  const uint32_t num_codes = 1u << (bits - lowest_bit);
-  const uint32_t block_size = 1u << lowest_bit;
-  const uint32_t size = static_cast<uint32_t>(projector_size);
-  std::vector<float> lut(num_codes);
-  for (uint32_t word = 0; word < num_codes; ++word) {
-    // The top bits of a Gray code decode to the top bits of the binary value.
-    const uint32_t block = code == PatternCode::kGray ? BinaryFromGray(word) : word;
-    const uint32_t start = block * block_size;
-    if (start >= size) {
-      lut[word] = kNaN;
-      continue;
-    }
-    const uint32_t end = std::min(start + block_size, size);
-    lut[word] = 0.5f * static_cast<float>(start + end - 1);
+}
+
+}  // namespace
+
+std::vector<float> MakeCoordinateLut(PatternCode code, int bits, int lowest_bit,
+                                     int projector_size) {
+  CheckCodeLayout(bits, lowest_bit, projector_size);
+  const uint32_t gray_mask = code == PatternCode::kGray ? ~0u : 0u;
+  const uint32_t nan_bits = FloatBits(kNaN);
+  std::vector<float> lut(size_t{1} << (bits - lowest_bit));
+  for (uint32_t word = 0; word < lut.size(); ++word) {
+    lut[word] = CoordinateOfWord(word, gray_mask, static_cast<uint32_t>(lowest_bit),
+                                 static_cast<uint32_t>(projector_size), nan_bits);
   }
   return lut;
 }
@@ -788,8 +827,7 @@ DecodePlan MakeDecodePlan(const FrameSetManifest& manifest, const DecoderOptions
       }
       axis_plan.bits_msb_first.push_back(frames);
     }
-    axis_plan.coordinate_of_code = MakeCoordinateLut(
-        manifest.AxisCode(axis), bits, axis_plan.lowest_bit, axis_plan.projector_size);
+    CheckCodeLayout(bits, axis_plan.lowest_bit, axis_plan.projector_size);
     if (plan.mode == BitDecision::kRobust) {
       const std::vector<BitFrames>& present = axis_plan.bits_msb_first;
       const size_t count = std::min<size_t>(kDirectGlobalBitsPerAxis, present.size());
@@ -1073,7 +1111,6 @@ struct IncrementalDecoder::Impl {
   std::vector<uint8_t> code[2][2], weak[2][2];
   std::vector<Pixel> margin, min_margin, max_diff;
   std::vector<int16_t> contrast, white_plus_black;
-  std::vector<uint8_t> boundary;
 
   const Pixel* Frame(int index) const { return images[index].ptr<Pixel>(); }
 
@@ -1097,7 +1134,6 @@ struct IncrementalDecoder::Impl {
     min_margin.resize(total);
     contrast.resize(total);
     white_plus_black.resize(total);
-    boundary.resize(internal::kChunkPixels);
     if (!has_white_black) {
       max_diff.assign(total, 0);
       ForChunks([&](size_t begin, int n) {
@@ -1180,16 +1216,8 @@ struct IncrementalDecoder::Impl {
     outputs.mask = map->mask.ptr<uint8_t>();
     outputs.confidence = map->confidence.ptr<float>();
     // ChunkDecoder::Finish per chunk.
-    static const float kUncodedLut[1] = {0.0f};
-    const auto axis_finish = [&](const internal::AxisPlan& axis) {
-      internal::AxisFinish finish;
-      finish.lut = axis.coded ? axis.coordinate_of_code.data() : kUncodedLut;
-      finish.gray = axis.code == PatternCode::kGray;
-      finish.max_neighbour_gap = static_cast<float>(1 << axis.lowest_bit) * 1.001f;
-      return finish;
-    };
-    const internal::AxisFinish finish_x = axis_finish(plan.axes[internal::kAxisX]);
-    const internal::AxisFinish finish_y = axis_finish(plan.axes[internal::kAxisY]);
+    const internal::AxisFinish finish_x = internal::MakeAxisFinish(plan.axes[internal::kAxisX]);
+    const internal::AxisFinish finish_y = internal::MakeAxisFinish(plan.axes[internal::kAxisY]);
     std::vector<float> discard(internal::kChunkPixels);
     const int solid_margin =
         internal::kSolidMarginFactor * std::max(thresholds.min_bit_margin, 1);
@@ -1207,7 +1235,7 @@ struct IncrementalDecoder::Impl {
           solid_margin, static_cast<float>(thresholds.margin_scale),
           outputs.proj[kAxisX] ? outputs.proj[kAxisX] + begin : discard.data(),
           outputs.proj[kAxisY] ? outputs.proj[kAxisY] + begin : discard.data(),
-          outputs.mask + begin, outputs.confidence + begin, boundary.data());
+          outputs.mask + begin, outputs.confidence + begin);
     });
     if (options.min_consistent_neighbours > 0) {
       internal::RemoveSpeckles(options.min_consistent_neighbours,

@@ -28,8 +28,6 @@ struct AxisPlan {
   // Present bits from the most significant down: the code word is built as
   // code ← 2·code + bit, so it ends as the top (bits − lowest_bit) bits of the code.
   std::vector<BitFrames> bits_msb_first;
-  // Code word → projector coordinate (see MakeCoordinateLut).
-  std::vector<float> coordinate_of_code;
 };
 
 // Everything Decode needs, resolved once from the manifest and the options.
@@ -51,7 +49,9 @@ DecodePlan MakeDecodePlan(const FrameSetManifest& manifest, const DecoderOptions
 // to the projector coordinate: Gray → binary for Gray codes, then the centre of the
 // coded block, (b · 2^k) + (min(2^k, size − b · 2^k) − 1) / 2 with k = lowest_bit (the
 // centre of the part of the block that lies on the projector); NaN when the block starts
-// at or beyond `projector_size`.
+// at or beyond `projector_size`. The decoder computes these per pixel, with the same
+// arithmetic (the table states the mapping for tests and tools). Throws sope::Error on an
+// invalid layout (bits outside 1..16, lowest_bit ≥ bits, projector_size ≤ 0).
 std::vector<float> MakeCoordinateLut(PatternCode code, int bits, int lowest_bit,
                                      int projector_size);
 
