@@ -42,6 +42,9 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 constexpr size_t kCacheLineBytes = 64;
 constexpr int kPrefetchAheadPixels = kChunkPixels;
 constexpr int kPrefetchBlockPixels = 256;
+// FinishPixels resolves stripe boundaries in blocks of this many pixels, skipping blocks
+// without candidates (most of a scan: background, shadow, stripe interiors).
+constexpr int kBoundaryBlock = 64;
 constexpr int kPrefetchLocality = 3;
 constexpr int kAxisX = static_cast<int>(PatternAxis::kX);
 constexpr int kAxisY = static_cast<int>(PatternAxis::kY);
@@ -315,34 +318,22 @@ inline float CoordinateOfWord(uint32_t word, uint32_t gray_mask, uint32_t lowest
   return FloatFromBits((FloatBits(centre) & on_projector) | (nan_bits & ~on_projector));
 }
 
-// Validity, coordinates and confidence of n pixels from their code words, weak-bit masks
-// and weakest decided margins (in units of margin_scale × grey levels). Confidence is that
-// margin relative to the contrast, halved for a pixel resolved at a boundary.
-//
-// Pixels with weak bits (margin below the threshold on some axis): for a Gray code the
-// pixel may sit on the boundary between two neighbouring projector columns (rows) c and
-// c + 1, whose code words differ in exactly one bit — the one stripe edge there,
-// undecidable because the pixel straddles it. Both words are formed from the decided bits;
-// when they decode to neighbours the coordinate is their midpoint — the boundary itself,
-// within half a step of the truth — and otherwise the pixel is invalid: a weak bit
-// anywhere else is never guessed. Only `solid` pixels are resolved, whose decided bits all
-// clear kSolidMarginFactor × the bit threshold: where light is scarce a decided bit may be
-// wrong too, and the boundary would be a guess. A binary code flips a run of bits at once
-// at many boundaries, where noise may decide some of them either way; its weak bits always
-// invalidate the pixel.
-//
-// Two branch-free passes that vectorise (the first takes each pixel's own word, the second
-// the boundary midpoint of its two candidate words where that resolves it).
+// FinishPixels' second pass over n pixels (a function of its own, called only for the
+// blocks that hold candidates; its loop runs from 0, as GCC 12 does not vectorise the
+// masked stores of a loop starting elsewhere): the boundary reading of the candidates
+// (weak bits, enough contrast, solid decided bits), kept where it resolves — the midpoint
+// of the words with the weak bits 0 and 1 (the word's own coordinate on an axis without
+// weak bits: 0.5 (x + x) = x).
 template <typename Margin, typename Wide>
-void FinishPixels(int n, const uint8_t* __restrict code_x_high,
-                  const uint8_t* __restrict code_x_low, const uint8_t* __restrict code_y_high,
-                  const uint8_t* __restrict code_y_low, const uint8_t* __restrict weak_x_high,
-                  const uint8_t* __restrict weak_x_low, const uint8_t* __restrict weak_y_high,
-                  const uint8_t* __restrict weak_y_low, const AxisFinish& axis_x,
-                  const AxisFinish& axis_y, const Wide* __restrict contrast,
-                  const Margin* __restrict margin, int min_contrast, int solid_margin,
-                  float margin_scale, float* __restrict out_x, float* __restrict out_y,
-                  uint8_t* __restrict mask, float* __restrict confidence) {
+__attribute__((noinline)) void ResolveBoundaries(
+    int n, const uint8_t* __restrict code_x_high, const uint8_t* __restrict code_x_low,
+    const uint8_t* __restrict code_y_high, const uint8_t* __restrict code_y_low,
+    const uint8_t* __restrict weak_x_high, const uint8_t* __restrict weak_x_low,
+    const uint8_t* __restrict weak_y_high, const uint8_t* __restrict weak_y_low,
+    const AxisFinish& axis_x, const AxisFinish& axis_y, const Wide* __restrict contrast,
+    const Margin* __restrict margin, int min_contrast, int solid_margin, float margin_scale,
+    float* __restrict out_x, float* __restrict out_y, uint8_t* __restrict mask,
+    float* __restrict confidence) {
   const uint32_t gray_x = axis_x.gray ? ~0u : 0u, gray_y = axis_y.gray ? ~0u : 0u;
   const bool boundary_x = axis_x.gray, boundary_y = axis_y.gray;
   const float max_gap_x = axis_x.max_neighbour_gap, max_gap_y = axis_y.max_neighbour_gap;
@@ -355,28 +346,6 @@ void FinishPixels(int n, const uint8_t* __restrict code_x_high,
   const auto coordinate_y = [&](uint32_t word) {
     return CoordinateOfWord(word, gray_y, low_y, size_y, nan_bits);
   };
-  // Pass 1: each pixel's own reading (valid without weak bits).
-  for (int i = 0; i < n; ++i) {
-    const float x = coordinate_x((uint32_t{code_x_high[i]} << 8) | code_x_low[i]);
-    const float y = coordinate_y((uint32_t{code_y_high[i]} << 8) | code_y_low[i]);
-    const int c = contrast[i];
-    const int m = margin[i];
-    const bool no_weak =
-        (weak_x_high[i] | weak_x_low[i] | weak_y_high[i] | weak_y_low[i]) == 0;
-    // x != x: NaN, the code lies beyond the projector.
-    const bool valid = (c >= min_contrast) & no_weak & (x == x) & (y == y);
-    out_x[i] = valid ? x : kNaN;
-    out_y[i] = valid ? y : kNaN;
-    mask[i] = static_cast<uint8_t>(valid ? 255 : 0);
-    const float relative =
-        static_cast<float>(m) / (margin_scale * static_cast<float>(std::max(c, 1)));
-    // valid ? min(relative, 1) : 0 — relative is finite and ≥ 0, so the product is exact
-    // (GCC 12 vectorises the product and not the select).
-    confidence[i] = std::min(relative, 1.0f) * (valid ? 1.0f : 0.0f);
-  }
-  // Pass 2: the boundary reading of the pixels with weak bits (invalid after pass 1), kept
-  // where it resolves: the midpoint of the words with the weak bits 0 and 1 (the word's own
-  // coordinate on an axis without weak bits: 0.5 (x + x) = x).
   for (int i = 0; i < n; ++i) {
     const uint32_t word_x = (uint32_t{code_x_high[i]} << 8) | code_x_low[i];
     const uint32_t word_y = (uint32_t{code_y_high[i]} << 8) | code_y_low[i];
@@ -403,6 +372,75 @@ void FinishPixels(int n, const uint8_t* __restrict code_x_high,
   }
 }
 
+// Validity, coordinates and confidence of n pixels from their code words, weak-bit masks
+// and weakest decided margins (in units of margin_scale × grey levels). Confidence is that
+// margin relative to the contrast, halved for a pixel resolved at a boundary.
+//
+// Pixels with weak bits (margin below the threshold on some axis): for a Gray code the
+// pixel may sit on the boundary between two neighbouring projector columns (rows) c and
+// c + 1, whose code words differ in exactly one bit — the one stripe edge there,
+// undecidable because the pixel straddles it. Both words are formed from the decided bits;
+// when they decode to neighbours the coordinate is their midpoint — the boundary itself,
+// within half a step of the truth — and otherwise the pixel is invalid: a weak bit
+// anywhere else is never guessed. Only `solid` pixels are resolved, whose decided bits all
+// clear kSolidMarginFactor × the bit threshold: where light is scarce a decided bit may be
+// wrong too, and the boundary would be a guess. A binary code flips a run of bits at once
+// at many boundaries, where noise may decide some of them either way; its weak bits always
+// invalidate the pixel.
+//
+// Two branch-free passes that vectorise: the first takes each pixel's own word and marks
+// the boundary candidates (`candidate`, scratch of n bytes); the second (ResolveBoundaries)
+// visits the blocks of kBoundaryBlock pixels that hold some.
+template <typename Margin, typename Wide>
+void FinishPixels(int n, const uint8_t* __restrict code_x_high,
+                  const uint8_t* __restrict code_x_low, const uint8_t* __restrict code_y_high,
+                  const uint8_t* __restrict code_y_low, const uint8_t* __restrict weak_x_high,
+                  const uint8_t* __restrict weak_x_low, const uint8_t* __restrict weak_y_high,
+                  const uint8_t* __restrict weak_y_low, const AxisFinish& axis_x,
+                  const AxisFinish& axis_y, const Wide* __restrict contrast,
+                  const Margin* __restrict margin, int min_contrast, int solid_margin,
+                  float margin_scale, float* __restrict out_x, float* __restrict out_y,
+                  uint8_t* __restrict mask, float* __restrict confidence,
+                  uint8_t* __restrict candidate) {
+  const uint32_t gray_x = axis_x.gray ? ~0u : 0u, gray_y = axis_y.gray ? ~0u : 0u;
+  const uint32_t low_x = axis_x.lowest_bit, size_x = axis_x.projector_size;
+  const uint32_t low_y = axis_y.lowest_bit, size_y = axis_y.projector_size;
+  const uint32_t nan_bits = FloatBits(kNaN);
+  for (int i = 0; i < n; ++i) {
+    const float x = CoordinateOfWord((uint32_t{code_x_high[i]} << 8) | code_x_low[i], gray_x,
+                                     low_x, size_x, nan_bits);
+    const float y = CoordinateOfWord((uint32_t{code_y_high[i]} << 8) | code_y_low[i], gray_y,
+                                     low_y, size_y, nan_bits);
+    const int c = contrast[i];
+    const int m = margin[i];
+    const bool no_weak =
+        (weak_x_high[i] | weak_x_low[i] | weak_y_high[i] | weak_y_low[i]) == 0;
+    // x != x: NaN, the code lies beyond the projector.
+    const bool valid = (c >= min_contrast) & no_weak & (x == x) & (y == y);
+    out_x[i] = valid ? x : kNaN;
+    out_y[i] = valid ? y : kNaN;
+    mask[i] = static_cast<uint8_t>(valid ? 255 : 0);
+    const float relative =
+        static_cast<float>(m) / (margin_scale * static_cast<float>(std::max(c, 1)));
+    // valid ? min(relative, 1) : 0 — relative is finite and ≥ 0, so the product is exact
+    // (GCC 12 vectorises the product and not the select).
+    confidence[i] = std::min(relative, 1.0f) * (valid ? 1.0f : 0.0f);
+    candidate[i] = static_cast<uint8_t>(!no_weak & (c >= min_contrast) & (m >= solid_margin));
+  }
+  for (int begin = 0; begin < n; begin += kBoundaryBlock) {
+    const int count = std::min(kBoundaryBlock, n - begin);
+    uint8_t any = 0;
+    for (int i = 0; i < count; ++i) any |= candidate[begin + i];
+    if (any == 0) continue;
+    ResolveBoundaries(count, code_x_high + begin, code_x_low + begin, code_y_high + begin,
+                      code_y_low + begin, weak_x_high + begin, weak_x_low + begin,
+                      weak_y_high + begin, weak_y_low + begin, axis_x, axis_y,
+                      contrast + begin, margin + begin, min_contrast, solid_margin,
+                      margin_scale, out_x + begin, out_y + begin, mask + begin,
+                      confidence + begin);
+  }
+}
+
 // Per-thread scratch for one chunk.
 template <typename Pixel>
 struct Workspace {
@@ -426,6 +464,7 @@ struct Workspace {
   alignas(64) uint8_t direct_dominates[kChunkPixels];
   alignas(64) uint8_t too_dark[kChunkPixels];
   alignas(64) float discard[kChunkPixels];  // coordinates of an axis that is not coded
+  alignas(64) uint8_t candidate[kChunkPixels];  // FinishPixels' boundary candidates
 };
 
 template <typename Pixel>
@@ -563,7 +602,7 @@ class ChunkDecoder {
                  static_cast<float>(thresholds_.margin_scale),
                  outputs_.proj[kAxisX] ? outputs_.proj[kAxisX] + begin : ws.discard,
                  outputs_.proj[kAxisY] ? outputs_.proj[kAxisY] + begin : ws.discard,
-                 outputs_.mask + begin, outputs_.confidence + begin);
+                 outputs_.mask + begin, outputs_.confidence + begin, ws.candidate);
   }
 
   const DecodePlan& plan_;
@@ -1219,6 +1258,7 @@ struct IncrementalDecoder::Impl {
     const internal::AxisFinish finish_x = internal::MakeAxisFinish(plan.axes[internal::kAxisX]);
     const internal::AxisFinish finish_y = internal::MakeAxisFinish(plan.axes[internal::kAxisY]);
     std::vector<float> discard(internal::kChunkPixels);
+    std::vector<uint8_t> candidate(internal::kChunkPixels);
     const int solid_margin =
         internal::kSolidMarginFactor * std::max(thresholds.min_bit_margin, 1);
     ForChunks([&](size_t begin, int n) {
@@ -1235,7 +1275,7 @@ struct IncrementalDecoder::Impl {
           solid_margin, static_cast<float>(thresholds.margin_scale),
           outputs.proj[kAxisX] ? outputs.proj[kAxisX] + begin : discard.data(),
           outputs.proj[kAxisY] ? outputs.proj[kAxisY] + begin : discard.data(),
-          outputs.mask + begin, outputs.confidence + begin);
+          outputs.mask + begin, outputs.confidence + begin, candidate.data());
     });
     if (options.min_consistent_neighbours > 0) {
       internal::RemoveSpeckles(options.min_consistent_neighbours,
