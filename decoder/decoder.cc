@@ -19,6 +19,7 @@
 #include "decoder/decoder_internal.h"
 #include "decoder/gray_refine.h"
 #include "decoder/phase_decoder.h"
+#include "decoder/speckle_filter.h"
 #include "projector/patterns.h"
 
 namespace sope {
@@ -709,10 +710,8 @@ void FlagSpeckles(const PairAgreements& above, const PairAgreements& next,
   }
 }
 
-// The speckle filter (DecoderOptions::min_consistent_neighbours): clears pixels with too
-// few agreeing decoded neighbours. Every decision reads unfiltered coordinates: row y is
-// cleared only once row y + 1 has been decided.
-void RemoveSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map) {
+// RemoveSpeckles (speckle_filter.h).
+void FilterSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map) {
   const int rows = map->mask.rows, cols = map->mask.cols;
   const std::vector<float> zeros(cols, 0.0f);
   const std::vector<float> missing(cols, kNaN);  // the rows beyond the image
@@ -820,6 +819,10 @@ cv::Mat ColorizeConfidence(const cv::Mat& confidence, const cv::Mat& mask) {
 }
 
 }  // namespace
+
+void RemoveSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map) {
+  FilterSpeckles(min_neighbours, tolerance, map);
+}
 
 namespace {
 

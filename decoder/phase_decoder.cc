@@ -15,6 +15,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "decoder/chunk_workers.h"
+#include "decoder/speckle_filter.h"
 #include "projector/patterns.h"
 
 namespace sope {
@@ -544,59 +545,6 @@ void DecodeAll(const Plan& plan, const std::vector<cv::Mat>& images, const Thres
     const size_t begin = chunk * kChunkPixels;
     decoders[worker].Decode(begin, static_cast<int>(std::min<size_t>(kChunkPixels, total - begin)));
   });
-}
-
-// The speckle filter (DecoderOptions::min_consistent_neighbours) on sub-pixel maps: a
-// pixel needs that many of its 8 neighbours within `tolerance` on every coded axis. An
-// unwrapping error moves a pixel by a whole period, far beyond the tolerance.
-void RemoveSpeckles(int min_neighbours, float tolerance, CorrespondenceMap* map) {
-  const int rows = map->mask.rows, cols = map->mask.cols;
-  const std::vector<float> zeros(cols, 0.0f);
-  const auto row_of = [&](const cv::Mat& image, int y) -> const float* {
-    return image.empty() ? zeros.data() : image.ptr<float>(y);
-  };
-  cv::Mat keep(rows, cols, CV_8UC1);
-  // Serial, as the Gray decoder's filter (DecoderOptions::num_threads covers the decode).
-  const auto filter = [&](const cv::Range& range) {
-    std::vector<uint8_t> count(cols);
-    for (int y = range.start; y < range.end; ++y) {
-      std::fill(count.begin(), count.end(), uint8_t{0});
-      const float* __restrict u = row_of(map->proj_x, y);
-      const float* __restrict v = row_of(map->proj_y, y);
-      for (int ny = std::max(0, y - 1); ny <= std::min(rows - 1, y + 1); ++ny) {
-        const float* __restrict nu = row_of(map->proj_x, ny);
-        const float* __restrict nv = row_of(map->proj_y, ny);
-        for (int dx = -1; dx <= 1; ++dx) {
-          if (dx == 0 && ny == y) continue;
-          // Invalid pixels hold NaN: every comparison with them is false.
-          const int begin = std::max(0, -dx), end = std::min(cols, cols - dx);
-          uint8_t* __restrict c = count.data();
-          for (int x = begin; x < end; ++x) {
-            const float du = nu[x + dx] - u[x], dv = nv[x + dx] - v[x];
-            c[x] = static_cast<uint8_t>(c[x] + ((du <= tolerance) & (du >= -tolerance) &
-                                                (dv <= tolerance) & (dv >= -tolerance)));
-          }
-        }
-      }
-      uint8_t* out = keep.ptr<uint8_t>(y);
-      for (int x = 0; x < cols; ++x) out[x] = count[x] >= min_neighbours;
-    }
-  };
-  filter(cv::Range(0, rows));
-  for (int y = 0; y < rows; ++y) {
-    const uint8_t* k = keep.ptr<uint8_t>(y);
-    uint8_t* mask = map->mask.ptr<uint8_t>(y);
-    float* confidence = map->confidence.ptr<float>(y);
-    float* u = map->HasX() ? map->proj_x.ptr<float>(y) : nullptr;
-    float* v = map->HasY() ? map->proj_y.ptr<float>(y) : nullptr;
-    for (int x = 0; x < cols; ++x) {
-      if (mask[x] == 0 || k[x] != 0) continue;
-      mask[x] = 0;
-      confidence[x] = 0.0f;
-      if (u != nullptr) u[x] = kNaN;
-      if (v != nullptr) v[x] = kNaN;
-    }
-  }
 }
 
 void PrepareOutput(cv::Size size, int type, cv::Mat* image) {
