@@ -14,6 +14,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "decoder/decoder_internal.h"
+#include "decoder/speckle_filter.h"
 #include "projector/patterns.h"
 #include "tests/test_support.h"
 
@@ -619,6 +620,78 @@ TEST(SyntheticDecode, SpeckleFilterRemovesIsolatedDecodesOnly) {
   const Score before = Evaluate(raw, capture), after = Evaluate(filtered, capture);
   EXPECT_GE(after.CorrectRate(), before.CorrectRate() - 0.002);
   ExpectConsistentMap(filtered);
+}
+
+// The speckle filter against the rule written out per pixel: a valid pixel stays when at
+// least min_neighbours of its 8 neighbours (inside the image) are within the tolerance on
+// every coded axis, judged on the unfiltered map. Random maps with invalid pixels (NaN),
+// coordinates near the tolerance, one and two coded axes, and thin images (borders only).
+TEST(SpeckleFilter, MatchesTheRuleOnRandomMaps) {
+  std::mt19937 random(7);
+  std::uniform_real_distribution<float> jitter(-1.6f, 1.6f);
+  std::bernoulli_distribution invalid(0.2);
+  constexpr float kTolerance = 1.0f;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (const cv::Size size : {cv::Size(1, 1), cv::Size(1, 9), cv::Size(9, 1), cv::Size(2, 2),
+                              cv::Size(13, 7), cv::Size(64, 5)}) {
+    for (const bool two_axes : {false, true}) {
+      for (int min_neighbours = 1; min_neighbours <= 8; ++min_neighbours) {
+        CorrespondenceMap map;
+        map.projector_width = 100;
+        map.projector_height = 100;
+        map.mask = cv::Mat(size, CV_8UC1, cv::Scalar(255));
+        map.confidence = cv::Mat(size, CV_32FC1, cv::Scalar(0.5));
+        map.proj_x = cv::Mat(size, CV_32FC1);
+        if (two_axes) map.proj_y = cv::Mat(size, CV_32FC1);
+        for (int y = 0; y < size.height; ++y) {
+          for (int x = 0; x < size.width; ++x) {
+            const bool bad = invalid(random);
+            map.mask.at<uint8_t>(y, x) = bad ? 0 : 255;
+            map.proj_x.at<float>(y, x) = bad ? nan : 10.0f + 0.5f * x + jitter(random);
+            if (two_axes) map.proj_y.at<float>(y, x) = bad ? nan : 20.0f + jitter(random);
+          }
+        }
+        CorrespondenceMap before = map;  // deep copies: the filter writes in place
+        before.mask = map.mask.clone();
+        before.proj_x = map.proj_x.clone();
+        before.proj_y = map.proj_y.clone();
+        internal::RemoveSpeckles(min_neighbours, kTolerance, &map);
+        for (int y = 0; y < size.height; ++y) {
+          for (int x = 0; x < size.width; ++x) {
+            const auto agrees = [&](int nx, int ny) {
+              const auto near = [&](const cv::Mat& image) {
+                if (image.empty()) return true;
+                const float d = image.at<float>(ny, nx) - image.at<float>(y, x);
+                return d <= kTolerance && d >= -kTolerance;
+              };
+              return near(before.proj_x) && near(before.proj_y);
+            };
+            int count = 0;
+            for (int dy = -1; dy <= 1; ++dy) {
+              for (int dx = -1; dx <= 1; ++dx) {
+                const int nx = x + dx, ny = y + dy;
+                if ((dx != 0 || dy != 0) && nx >= 0 && ny >= 0 && nx < size.width &&
+                    ny < size.height) {
+                  count += agrees(nx, ny);
+                }
+              }
+            }
+            const bool valid = before.mask.at<uint8_t>(y, x) != 0;
+            const bool kept = valid && count >= min_neighbours;
+            SCOPED_TRACE(::testing::Message() << size << " two axes " << two_axes << " min "
+                                            << min_neighbours << " at " << x << "," << y);
+            ASSERT_EQ(map.mask.at<uint8_t>(y, x) != 0, kept);
+            if (valid && !kept) {
+              EXPECT_TRUE(std::isnan(map.proj_x.at<float>(y, x)));
+              EXPECT_EQ(map.confidence.at<float>(y, x), 0.0f);
+            } else if (valid) {
+              EXPECT_EQ(map.proj_x.at<float>(y, x), before.proj_x.at<float>(y, x));
+            }
+          }
+        }
+      }
+    }
+  }
 }
 
 TEST(SyntheticDecode, CodesBeyondTheProjectorAreInvalid) {
