@@ -476,7 +476,7 @@ PYBIND11_MODULE(_sope, m) {
   m.def("default_rig", []() { return CalibrationToDict(DefaultRigCalibration()); });
   m.def("simulate",
         [](const std::string& mesh, const py::array_t<double, py::array::forcecast>& pose,
-           const py::object& rig, double size) {
+           const py::object& rig, double size, uint64_t seed) {
           const RigCalibration calibration =
               rig.is_none() ? DefaultRigCalibration() : CalibrationFromDict(rig.cast<py::dict>());
           const Rigid3d centre_pose = PoseFromArray(pose, "pose");
@@ -489,7 +489,9 @@ PYBIND11_MODULE(_sope, m) {
             placement.size = size;
             Scene scene;
             scene.objects.push_back(PlaceObject(LoadMeshSpec(mesh), placement));
-            VirtualRig virtual_rig(calibration);
+            SensorOptions sensor;
+            sensor.seed = seed;
+            VirtualRig virtual_rig(calibration, sensor);
             PatternOptions patterns;
             patterns.projector_width = calibration.projector.width;
             patterns.projector_height = calibration.projector.height;
@@ -506,10 +508,12 @@ PYBIND11_MODULE(_sope, m) {
           return py::make_tuple(std::move(scan.frames), truth);
         },
         py::arg("mesh"), py::arg("pose"), py::arg("rig") = py::none(), py::arg("size") = 0.0,
+        py::arg("seed") = 1,
         "Renders the Gray-code sequence of `mesh` (a file or builtin:NAME) placed with `pose` "
         "(4x4: rotation and bounding-box centre in the camera frame, metres) on the virtual "
         "rig → (FrameSet, ground truth dict: depth, proj_x, proj_y, lit, object_id, "
-        "cam_from_model, calibration). size > 0 scales the mesh to that diagonal (metres).");
+        "cam_from_model, calibration). size > 0 scales the mesh to that diagonal (metres); "
+        "seed: the sensor noise's seed (`sope simulate --seed`).");
 }
 
 }  // namespace python

@@ -14,6 +14,7 @@
 
 #include "core/error.h"
 #include "simulator/osmesa_context.h"
+#include "simulator/sensor_noise.h"
 #include "simulator/virtual_rig_internal.h"
 
 namespace sope {
@@ -876,19 +877,17 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
   const float shot_noise = static_cast<float>(d.options.shot_noise);
   cv::Mat image(height, width, CV_8UC1);
   cv::parallel_for_(cv::Range(0, height), [&](const cv::Range& rows) {
+    std::vector<float> noisy_row(noisy ? width : 0);
     for (int y = rows.start; y < rows.end; ++y) {
-      std::mt19937_64 engine(MixSeed(call_seed ^ static_cast<uint64_t>(y)));
-      std::normal_distribution<float> normal(0.0f, 1.0f);
       const float* in = linear.ptr<float>(y);
       uint8_t* out = image.ptr<uint8_t>(y);
-      for (int x = 0; x < width; ++x) {
-        float value = in[x];
-        if (noisy) {
-          const float signal = std::max(value, 0.0f);
-          value += std::sqrt(read_variance + shot_noise * signal) * normal(engine);
-        }
-        out[x] = d.Quantise(value);
+      if (noisy) {
+        // A row's deviates depend on the call's seed and the row only (any thread order).
+        internal::AddSensorNoise(MixSeed(call_seed ^ static_cast<uint64_t>(y)), in, width,
+                                 read_variance, shot_noise, noisy_row.data());
+        in = noisy_row.data();
       }
+      for (int x = 0; x < width; ++x) out[x] = d.Quantise(in[x]);
     }
   });
   return image;

@@ -129,15 +129,19 @@ def test_scan_and_recognise_matches_the_cli(tmp_path, cli_db):
     cwd = str(tmp_path)
     os.symlink(cli_db, tmp_path / "db.sopedb")
     pose_text = "20,-30,10,0.02,-0.01,0.55"
-    run("simulate", "--mesh", "builtin:mug:1", "--object-pose", pose_text, "--out", "scan",
-        cwd=cwd)
+    # The noise seed: over seeds 1-6 of this scene the 40-view database's answer was within
+    # 5 degrees of the true pose five times and 88 degrees off once (seed 1: the mug turned
+    # about its axis, README "Weak points"); the comparison with the CLI holds for every seed.
+    seed = "3"
+    run("simulate", "--mesh", "builtin:mug:1", "--object-pose", pose_text, "--seed", seed,
+        "--out", "scan", cwd=cwd)
     run("scan", "--frames", "scan", "--out", "cloud.ply", cwd=cwd)
     cli = json.loads(run("recognise", "--db", "db.sopedb", "--cloud", "cloud.ply", "--json",
                          cwd=cwd).splitlines()[0])
 
     # The same scan in Python: virtual rig → decode → triangulate → recognise.
     pose = pose_matrix(*(float(v) for v in pose_text.split(",")))
-    frames, truth = sope.simulate("builtin:mug:1", pose)
+    frames, truth = sope.simulate("builtin:mug:1", pose, seed=int(seed))
     maps = sope.decode(frames)
     points, _ = sope.triangulate(maps, truth["calibration"])
     cli_cloud = sope.load_cloud(str(tmp_path / "cloud.ply"))
