@@ -22,8 +22,22 @@ all: build
 deps:
 	scripts/install-deps.sh
 
+# A new build tree uses Ninja when it is installed (install-deps installs it; chosen after
+# deps ran, so a fresh machine gets it too): it keeps both cores compiling where make's
+# recursive target scheduling idles one (README "Build and test time"). GENERATOR=... picks
+# another; an existing tree keeps the generator it was made with.
+GENERATOR ?=
+
 configure: deps
-	cmake -S . -B $(BUILD) $(CMAKE_FLAGS)
+	@if [ -f $(BUILD)/CMakeCache.txt ]; then \
+	  set -x; cmake -S . -B $(BUILD) $(CMAKE_FLAGS); \
+	else \
+	  generator="$(GENERATOR)"; \
+	  if [ -z "$$generator" ]; then \
+	    if command -v ninja >/dev/null; then generator=Ninja; else generator="Unix Makefiles"; fi; \
+	  fi; \
+	  set -x; cmake -S . -B $(BUILD) -G "$$generator" $(CMAKE_FLAGS); \
+	fi
 
 build: configure
 	cmake --build $(BUILD) -j$(JOBS)

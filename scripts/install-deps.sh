@@ -4,7 +4,7 @@
 set -euo pipefail
 
 packages=(
-  build-essential cmake pkg-config ccache
+  build-essential cmake ninja-build pkg-config ccache
   libopencv-dev libopencv-contrib-dev libpcl-dev libceres-dev libeigen3-dev
   libglfw3-dev libx11-dev libosmesa6-dev libv4l-dev
   libcli11-dev nlohmann-json3-dev libfmt-dev libspdlog-dev

@@ -70,6 +70,25 @@ bool NearestTexel(const cv::Mat& ids, const Eigen::Vector2d& texel, int* ci, int
   return true;
 }
 
+// The smallest rectangle holding every non-zero id (empty when there is none).
+cv::Rect IdBoundingBox(const cv::Mat& ids) {
+  int min_x = ids.cols, max_x = -1, min_y = ids.rows, max_y = -1;
+  for (int j = 0; j < ids.rows; ++j) {
+    const int32_t* row = ids.ptr<int32_t>(j);
+    int first = 0;
+    while (first < ids.cols && row[first] == 0) ++first;
+    if (first == ids.cols) continue;
+    int last = ids.cols - 1;
+    while (row[last] == 0) --last;
+    min_x = std::min(min_x, first);
+    max_x = std::max(max_x, last);
+    min_y = std::min(min_y, j);
+    max_y = j;
+  }
+  if (max_x < 0) return cv::Rect();
+  return cv::Rect(min_x, min_y, max_x - min_x + 1, max_y - min_y + 1);
+}
+
 }  // namespace
 
 FieldBounds UndistortedFieldBounds(const CameraModel& device) {
@@ -984,6 +1003,10 @@ PointCloud DepthRenderer::Render(const Rigid3d& cam_from_model) {
   RenderIds(&d.rasteriser, d.view, {cam_from_model}, {d.model_center}, {d.model_radius}, &d.ids);
   const Rigid3d model_from_cam = cam_from_model.Inverse();
   const int width = d.camera.width;
+  // CastRay finds no hit for a pixel whose nearest texel's 3×3 window holds no id: those
+  // outside the ids' bounding box (most of a view) are skipped before the ray is turned.
+  const cv::Rect box = internal::IdBoundingBox(d.ids);
+  if (box.empty()) return cloud;
   cv::parallel_for_(cv::Range(0, d.camera.height), [&](const cv::Range& rows) {
     for (int y = rows.start; y < rows.end; ++y) {
       float* depth = d.depth.ptr<float>(y);
@@ -991,6 +1014,11 @@ PointCloud DepthRenderer::Render(const Rigid3d& cam_from_model) {
       cv::Vec3f* normals = d.normals.ptr<cv::Vec3f>(y);
       for (int x = 0; x < width; ++x) {
         const size_t i = static_cast<size_t>(y) * width + x;
+        int ci = 0, cj = 0;
+        if (!internal::NearestTexel(d.ids, d.texels[i], &ci, &cj) || ci + 1 < box.x ||
+            ci - 1 >= box.x + box.width || cj + 1 < box.y || cj - 1 >= box.y + box.height) {
+          continue;
+        }
         const Eigen::Vector3d& ray = d.rays[i];
         const RayHit hit = d.triangles.CastRay(d.ids, d.texels[i], model_from_cam.translation,
                                                model_from_cam.rotation * ray, 1.0 / d.view.fx);
