@@ -4,6 +4,7 @@
 // Scan (show the patterns, grab the frames), decode + triangulate, cut the cloud down to the
 // object with a range band, recognise it and estimate its pose — once per scan. Flags →
 // options → the pipeline's controller (pipeline/scan_and_recognise.h).
+#include <algorithm>
 #include <cstdio>
 #include <memory>
 #include <optional>
@@ -121,6 +122,7 @@ ScanAndRecogniseOptions Flags::ControllerOptions(const std::atomic<bool>* cancel
   options.scan.decoder = decoder.ToOptions();
   options.scan.triangulation = triangulation.ToOptions();
   options.scan.triangulation.num_threads = options.scan.decoder.num_threads;
+  options.recognition.screening.threads = std::max(1, options.scan.decoder.num_threads);
   options.recognition.top_k = top;
   options.tabletop = table.table;
   if (min_range >= 0) options.min_range = min_range;

@@ -86,7 +86,8 @@ void DecoderFlags::Add(CLI::App& app) {
                "Phase sets: ignore the calibration's projector_response (e.g. for patterns "
                "pre-distorted with --pattern-gamma)");
   app.add_option("--threads", options.num_threads,
-                 "Threads for decoding (and triangulating, in commands that triangulate)")->capture_default_str();
+                 "Threads for decoding (and triangulating, in commands that triangulate; and "
+                 "the pose screening, in scan-and-recognise)")->capture_default_str();
 }
 
 DecoderOptions DecoderFlags::ToOptions() const {

@@ -185,12 +185,14 @@ void RunLatency(benchmark::State& state, bool thesis, int widen_batch = -1) {
 // but the last goes into an IncrementalDecoder while the rest is captured (not timed:
 // it overlaps the capture); timed from the last frame: its AddFrame, Finish, the
 // triangulation (`threads` threads) of the decoded map, segmentation and recognition
-// (sope database + defaults), as the sope configuration above.
+// (sope database + defaults, the pose screening on `screen_threads` threads), as the sope
+// configuration above.
 void BM_FrameToResult_Overlapped(benchmark::State& state) {
   const Input& input = GetInput();
   const Database& db = *input.sope_db;
   const Recogniser recogniser(db);
-  const RecognitionOptions options;
+  RecognitionOptions options;
+  options.screening.threads = static_cast<int>(state.range(1));
   TriangulationOptions triangulation;
   triangulation.num_threads = static_cast<int>(state.range(0));
   const Triangulator triangulator(input.calibration, triangulation);
@@ -218,8 +220,9 @@ void BM_FrameToResult_Overlapped(benchmark::State& state) {
     samples.Add(state, ms, result, scan.scene);
   }
   samples.Report(state);
-  state.SetLabel(fmt::format("sope database + defaults, decoded during capture, {} thread(s)",
-                             triangulation.num_threads));
+  state.SetLabel(fmt::format(
+      "sope database + defaults, decoded during capture, {} thread(s), screening on {}",
+      triangulation.num_threads, options.screening.threads));
 }
 
 void BM_FrameToResult_Sope(benchmark::State& state) { RunLatency(state, false); }
@@ -233,10 +236,13 @@ BENCHMARK(BM_FrameToResult_SopeWidenAtOnce)
     ->Iterations(5 * kScans)
     ->UseManualTime()
     ->Unit(benchmark::kMillisecond);
+// (triangulation threads, screening threads): 1 and 2 cores as before, then 2 cores with
+// the pose screening on both (ScreeningOptions::threads).
 BENCHMARK(BM_FrameToResult_Overlapped)
-    ->Arg(1)
-    ->Arg(2)
-    ->ArgName("threads")
+    ->Args({1, 1})
+    ->Args({2, 1})
+    ->Args({2, 2})
+    ->ArgNames({"threads", "screen_threads"})
     ->Iterations(5 * kScans)
     ->UseManualTime()
     ->Unit(benchmark::kMillisecond);

@@ -123,7 +123,11 @@ const std::vector<OptionField<ScreeningOptions>>& ScreeningOptions::Fields() {
       Field(&O::quick_points, "quick_points", "View cloud points of the short ICP").AtLeast(6),
       Field(&O::quick_coverage_samples, "quick_coverage_samples",
             "Query points of the short ICP's score")
-          .AtLeast(1)};
+          .AtLeast(1),
+      Field(&O::threads, "threads", "Threads screening views (same answers for any count)")
+          .AtLeast(1)
+          .AtMost(64)
+          .Flag("--pose-threads")};
   return fields;
 }
 void ScreeningOptions::Check() const { CheckFields(*this, Fields(), "recognition: screening."); }

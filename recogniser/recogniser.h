@@ -127,6 +127,11 @@ struct ScreeningOptions {
   // quick_coverage_samples query points.
   int quick_points = 64;
   int quick_coverage_samples = 128;
+  // Threads screening the views (the calling thread and threads − 1 more; each view's
+  // hypotheses are independent). The answers are the same for any count. 1 for the
+  // figures in CPU time per query (evaluation); the live loop's last frame → result uses
+  // the cores the capture no longer needs.
+  int threads = 1;
   static const std::vector<OptionField<ScreeningOptions>>& Fields();
   void Check() const;
 };

@@ -382,6 +382,30 @@ TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
   }
 }
 
+// Screening on several threads (ScreeningOptions::threads) gives the same answers as on
+// one, bit for bit, on the normal and on the widened search.
+TEST_F(RecogniserTest, ScreeningThreadsGiveTheSameAnswers) {
+  const auto without_timing = [](const RecognitionResult& result) {
+    nlohmann::json j = nlohmann::json::parse(RecognitionResultToJson(result));
+    j.erase("timing_ms");
+    j.erase("cpu_ms");
+    return j.dump();
+  };
+  const Recogniser recogniser(*db_);
+  for (const Query& q : MakeQueries(4, 91)) {
+    for (const double widen_below : {0.85, 1.5}) {  // 1.5: the widened search always runs
+      RecognitionOptions options;
+      options.widening.below_score = widen_below;
+      const std::string one = without_timing(recogniser.Recognise(q.query.cloud, options));
+      for (const int threads : {2, 3}) {
+        options.screening.threads = threads;
+        EXPECT_EQ(without_timing(recogniser.Recognise(q.query.cloud, options)), one)
+            << threads << " threads, widened below " << widen_below;
+      }
+    }
+  }
+}
+
 TEST_F(RecogniserTest, NoKnownObjectBelowTheVerificationThreshold) {
   const Recogniser recogniser(*db_);
   std::mt19937_64 rng(13);

@@ -1,10 +1,13 @@
 #include "recogniser/stages.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <exception>
 #include <functional>
 #include <limits>
 #include <numeric>
+#include <thread>
 #include <utility>
 
 #include "core/error.h"
@@ -392,7 +395,9 @@ std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& 
   // taken at a settled pose.
   PoseOptions quick_options = options.pose;
   quick_options.gate_iterations = std::max(1, options.screening.quick_iterations - 2);
-  std::vector<PoseCandidate> out;
+  // The views to screen, in order; then each screened (on options.screening.threads
+  // threads), the results kept in that order — the same answers for any thread count.
+  std::vector<std::pair<int, RankedView>> jobs;  // model, view
   for (int model_index : request.models) {
     std::vector<RankedView> views;
     if (request.rank_all_views) {
@@ -404,12 +409,45 @@ std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& 
     }
     for (const RankedView& r :
          SeparatedViews(db, std::move(views), request.views_per_model, min_separation_cos)) {
-      PoseCandidate candidate;
-      if (ScreenView(context, r, model_index, request.hypotheses, quick_options, options,
-                     &candidate)) {
-        out.push_back(std::move(candidate));
-      }
+      jobs.emplace_back(model_index, r);
     }
+  }
+  std::vector<PoseCandidate> screened(jobs.size());
+  std::vector<uint8_t> found(jobs.size(), 0);
+  const auto screen = [&](size_t j) {
+    found[j] = ScreenView(context, jobs[j].second, jobs[j].first, request.hypotheses,
+                          quick_options, options, &screened[j]);
+  };
+  const int threads =
+      static_cast<int>(std::min<size_t>(std::max(1, options.screening.threads), jobs.size()));
+  if (threads <= 1) {
+    for (size_t j = 0; j < jobs.size(); ++j) screen(j);
+  } else {
+    // The context's lazily filled caches (pose query, view clouds) are filled here first,
+    // so the workers only read them.
+    context->pose_query(options.pose);
+    for (const auto& job : jobs) context->ViewCloud(job.second.view);
+    std::atomic<size_t> next{0};
+    std::vector<std::exception_ptr> errors(threads);
+    const auto work = [&](int t) {
+      try {
+        for (size_t j = next++; j < jobs.size(); j = next++) screen(j);
+      } catch (...) {
+        errors[t] = std::current_exception();
+        next = jobs.size();  // the others stop too
+      }
+    };
+    std::vector<std::thread> workers;
+    for (int t = 1; t < threads; ++t) workers.emplace_back(work, t);
+    work(0);
+    for (std::thread& worker : workers) worker.join();
+    for (const std::exception_ptr& error : errors) {
+      if (error) std::rethrow_exception(error);
+    }
+  }
+  std::vector<PoseCandidate> out;
+  for (size_t j = 0; j < jobs.size(); ++j) {
+    if (found[j]) out.push_back(std::move(screened[j]));
   }
   std::stable_sort(out.begin(), out.end(), [](const PoseCandidate& a, const PoseCandidate& b) {
     return a.alignment.score > b.alignment.score;
