@@ -122,7 +122,7 @@ ScanAndRecogniseOptions Flags::ControllerOptions(const std::atomic<bool>* cancel
   options.scan.decoder = decoder.ToOptions();
   options.scan.triangulation = triangulation.ToOptions();
   options.scan.triangulation.num_threads = options.scan.decoder.num_threads;
-  options.recognition.screening.threads = std::max(1, options.scan.decoder.num_threads);
+  options.recognition.threads = std::max(1, options.scan.decoder.num_threads);
   options.recognition.top_k = top;
   options.tabletop = table.table;
   if (min_range >= 0) options.min_range = min_range;

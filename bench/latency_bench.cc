@@ -185,14 +185,14 @@ void RunLatency(benchmark::State& state, bool thesis, int widen_batch = -1) {
 // but the last goes into an IncrementalDecoder while the rest is captured (not timed:
 // it overlaps the capture); timed from the last frame: its AddFrame, Finish, the
 // triangulation (`threads` threads) of the decoded map, segmentation and recognition
-// (sope database + defaults, the pose screening on `screen_threads` threads), as the sope
+// (sope database + defaults, the pose stages on `pose_threads` threads), as the sope
 // configuration above.
 void BM_FrameToResult_Overlapped(benchmark::State& state) {
   const Input& input = GetInput();
   const Database& db = *input.sope_db;
   const Recogniser recogniser(db);
   RecognitionOptions options;
-  options.screening.threads = static_cast<int>(state.range(1));
+  options.threads = static_cast<int>(state.range(1));
   TriangulationOptions triangulation;
   triangulation.num_threads = static_cast<int>(state.range(0));
   const Triangulator triangulator(input.calibration, triangulation);
@@ -221,8 +221,8 @@ void BM_FrameToResult_Overlapped(benchmark::State& state) {
   }
   samples.Report(state);
   state.SetLabel(fmt::format(
-      "sope database + defaults, decoded during capture, {} thread(s), screening on {}",
-      triangulation.num_threads, options.screening.threads));
+      "sope database + defaults, decoded during capture, {} thread(s), pose stages on {}",
+      triangulation.num_threads, options.threads));
 }
 
 void BM_FrameToResult_Sope(benchmark::State& state) { RunLatency(state, false); }
@@ -236,13 +236,13 @@ BENCHMARK(BM_FrameToResult_SopeWidenAtOnce)
     ->Iterations(5 * kScans)
     ->UseManualTime()
     ->Unit(benchmark::kMillisecond);
-// (triangulation threads, screening threads): 1 and 2 cores as before, then 2 cores with
-// the pose screening on both (ScreeningOptions::threads).
+// (triangulation threads, pose-stage threads): 1 and 2 cores as before, then 2 cores with
+// the pose screening and refinement on both (RecognitionOptions::threads).
 BENCHMARK(BM_FrameToResult_Overlapped)
     ->Args({1, 1})
     ->Args({2, 1})
     ->Args({2, 2})
-    ->ArgNames({"threads", "screen_threads"})
+    ->ArgNames({"threads", "pose_threads"})
     ->Iterations(5 * kScans)
     ->UseManualTime()
     ->Unit(benchmark::kMillisecond);

@@ -123,11 +123,7 @@ const std::vector<OptionField<ScreeningOptions>>& ScreeningOptions::Fields() {
       Field(&O::quick_points, "quick_points", "View cloud points of the short ICP").AtLeast(6),
       Field(&O::quick_coverage_samples, "quick_coverage_samples",
             "Query points of the short ICP's score")
-          .AtLeast(1),
-      Field(&O::threads, "threads", "Threads screening views (same answers for any count)")
-          .AtLeast(1)
-          .AtMost(64)
-          .Flag("--pose-threads")};
+          .AtLeast(1)};
   return fields;
 }
 void ScreeningOptions::Check() const { CheckFields(*this, Fields(), "recognition: screening."); }
@@ -228,7 +224,12 @@ const std::vector<OptionField<RecognitionOptions>>& RecognitionOptions::Fields()
         Field(&O::top_k, "top_k", "Suggestions returned").AtLeast(1).Flag("--top"),
         Field(&O::grouping, "grouping",
               "One suggestion per model, per class, or per database view (thesis)")
-            .Flag("--grouping")};
+            .Flag("--grouping"),
+        Field(&O::threads, "threads",
+              "Threads of the pose screening and refinement (same answers for any count)")
+            .AtLeast(1)
+            .AtMost(64)
+            .Flag("--pose-threads")};
     AppendNested(&f, &O::coarse, "coarse", CoarseOptions::Fields());
     AppendNested(&f, &O::fine, "fine", FineOptions::Fields());
     AppendNested(&f, &O::screening, "screening", ScreeningOptions::Fields());

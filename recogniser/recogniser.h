@@ -127,11 +127,6 @@ struct ScreeningOptions {
   // quick_coverage_samples query points.
   int quick_points = 64;
   int quick_coverage_samples = 128;
-  // Threads screening the views (the calling thread and threads − 1 more; each view's
-  // hypotheses are independent). The answers are the same for any count. 1 for the
-  // figures in CPU time per query (evaluation); the live loop's last frame → result uses
-  // the cores the capture no longer needs.
-  int threads = 1;
   static const std::vector<OptionField<ScreeningOptions>>& Fields();
   void Check() const;
 };
@@ -233,6 +228,12 @@ struct RecognitionOptions {
   // Suggestions returned.
   int top_k = 4;
   SuggestionGrouping grouping = SuggestionGrouping::kModel;
+  // Threads of the pose stages: the views screened and the candidates refined in
+  // parallel (the calling thread and threads − 1 more; each view's hypotheses and each
+  // candidate's refinement are independent), the results kept in order — the answers are
+  // the same for any count. 1 for figures in CPU time per query (evaluation); the live
+  // loop's last frame → result can use the cores the capture no longer needs.
+  int threads = 1;
   // Pose-only queries (thesis §5, the object known): when not empty, only these database
   // models are considered and all their views are ranked (no coarse search).
   std::vector<int> restrict_to_models;

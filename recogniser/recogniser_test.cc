@@ -398,7 +398,7 @@ TEST_F(RecogniserTest, ScreeningThreadsGiveTheSameAnswers) {
       options.widening.below_score = widen_below;
       const std::string one = without_timing(recogniser.Recognise(q.query.cloud, options));
       for (const int threads : {2, 3}) {
-        options.screening.threads = threads;
+        options.threads = threads;
         EXPECT_EQ(without_timing(recogniser.Recognise(q.query.cloud, options)), one)
             << threads << " threads, widened below " << widen_below;
       }

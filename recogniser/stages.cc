@@ -6,6 +6,7 @@
 #include <exception>
 #include <functional>
 #include <limits>
+#include <mutex>
 #include <numeric>
 #include <thread>
 #include <utility>
@@ -54,6 +55,34 @@ std::vector<RankedView> SeparatedViews(const Database& db, std::vector<RankedVie
 
 // Roll hypotheses of one view and a short ICP from each on a prefix of its cloud; the
 // best-scoring hypothesis, or nothing when the view gave no hypothesis.
+// Runs job(0) … job(count − 1) on `threads` threads (the calling one and threads − 1
+// more; all on the calling thread when threads ≤ 1), each job once; the first exception
+// a job throws is rethrown here after every thread has stopped.
+void RunJobs(int threads, size_t count, const std::function<void(size_t)>& job) {
+  const size_t workers_wanted = std::min<size_t>(std::max(1, threads), count);
+  if (workers_wanted <= 1) {
+    for (size_t j = 0; j < count; ++j) job(j);
+    return;
+  }
+  std::atomic<size_t> next{0};
+  std::vector<std::exception_ptr> errors(workers_wanted);
+  const auto work = [&](size_t t) {
+    try {
+      for (size_t j = next++; j < count; j = next++) job(j);
+    } catch (...) {
+      errors[t] = std::current_exception();
+      next = count;  // the others stop too
+    }
+  };
+  std::vector<std::thread> workers;
+  for (size_t t = 1; t < workers_wanted; ++t) workers.emplace_back(work, t);
+  work(0);
+  for (std::thread& worker : workers) worker.join();
+  for (const std::exception_ptr& error : errors) {
+    if (error) std::rethrow_exception(error);
+  }
+}
+
 bool ScreenView(StageContext* context, const RankedView& r, int model_index,
                 const PoseOptions& hypothesis_options, const PoseOptions& quick_options,
                 const RecognitionOptions& options, PoseCandidate* out) {
@@ -281,6 +310,9 @@ const PoseQuery& StageContext::pose_query(const PoseOptions& options) {
 }
 
 const PointCloud& StageContext::ViewCloud(int view) {
+  // Guarded: the pose stages' threads share the cache. An element's address stays valid
+  // while others are inserted (std::unordered_map), so the reference outlives the lock.
+  std::lock_guard<std::mutex> lock(clouds_mutex_);
   auto it = clouds_.find(view);
   if (it == clouds_.end()) {
     it = clouds_.emplace(view, PointCloud()).first;
@@ -395,8 +427,8 @@ std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& 
   // taken at a settled pose.
   PoseOptions quick_options = options.pose;
   quick_options.gate_iterations = std::max(1, options.screening.quick_iterations - 2);
-  // The views to screen, in order; then each screened (on options.screening.threads
-  // threads), the results kept in that order — the same answers for any thread count.
+  // The views to screen, in order; then each screened (on options.threads threads), the
+  // results kept in that order — the same answers for any thread count.
   std::vector<std::pair<int, RankedView>> jobs;  // model, view
   for (int model_index : request.models) {
     std::vector<RankedView> views;
@@ -414,37 +446,11 @@ std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& 
   }
   std::vector<PoseCandidate> screened(jobs.size());
   std::vector<uint8_t> found(jobs.size(), 0);
-  const auto screen = [&](size_t j) {
+  if (options.threads > 1) context->pose_query(options.pose);  // built once, then read
+  RunJobs(options.threads, jobs.size(), [&](size_t j) {
     found[j] = ScreenView(context, jobs[j].second, jobs[j].first, request.hypotheses,
                           quick_options, options, &screened[j]);
-  };
-  const int threads =
-      static_cast<int>(std::min<size_t>(std::max(1, options.screening.threads), jobs.size()));
-  if (threads <= 1) {
-    for (size_t j = 0; j < jobs.size(); ++j) screen(j);
-  } else {
-    // The context's lazily filled caches (pose query, view clouds) are filled here first,
-    // so the workers only read them.
-    context->pose_query(options.pose);
-    for (const auto& job : jobs) context->ViewCloud(job.second.view);
-    std::atomic<size_t> next{0};
-    std::vector<std::exception_ptr> errors(threads);
-    const auto work = [&](int t) {
-      try {
-        for (size_t j = next++; j < jobs.size(); j = next++) screen(j);
-      } catch (...) {
-        errors[t] = std::current_exception();
-        next = jobs.size();  // the others stop too
-      }
-    };
-    std::vector<std::thread> workers;
-    for (int t = 1; t < threads; ++t) workers.emplace_back(work, t);
-    work(0);
-    for (std::thread& worker : workers) worker.join();
-    for (const std::exception_ptr& error : errors) {
-      if (error) std::rethrow_exception(error);
-    }
-  }
+  });
   std::vector<PoseCandidate> out;
   for (size_t j = 0; j < jobs.size(); ++j) {
     if (found[j]) out.push_back(std::move(screened[j]));
@@ -461,7 +467,10 @@ RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> c
   refine_options.gate_iterations = 2;
   RefinementResult result;
   result.candidates = std::move(candidates);
+  // The best candidate of each of the first `count` distinct models (the choice does not
+  // depend on the refinements), refined on options.threads threads.
   std::vector<int> refined_models;
+  std::vector<PoseCandidate*> chosen;
   for (PoseCandidate& candidate : result.candidates) {
     if (static_cast<int>(refined_models.size()) >= count) break;
     if (std::find(refined_models.begin(), refined_models.end(), candidate.model) !=
@@ -469,8 +478,14 @@ RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> c
       continue;
     }
     refined_models.push_back(candidate.model);
-    RefineCandidate(context, refine_options, options, &candidate);
-    result.best_score = std::max(result.best_score, candidate.alignment.score);
+    chosen.push_back(&candidate);
+  }
+  if (options.threads > 1) context->pose_query(options.pose);  // built once, then read
+  RunJobs(options.threads, chosen.size(), [&](size_t j) {
+    RefineCandidate(context, refine_options, options, chosen[j]);
+  });
+  for (const PoseCandidate* candidate : chosen) {
+    result.best_score = std::max(result.best_score, candidate->alignment.score);
   }
   return result;
 }

@@ -17,6 +17,7 @@
 // is deterministic: the same inputs give bit-identical outputs.
 #pragma once
 
+#include <mutex>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -68,7 +69,8 @@ bool RankedBefore(const RankedView& a, const RankedView& b);
 
 // What the stages after the coarse one share: the database, the query, its codes, the
 // canonical pose query (built on first use) and the decoded view clouds (each once).
-// Keeps references: db, query and coarse must outlive it. Not thread-safe.
+// Keeps references: db, query and coarse must outlive it. ViewCloud may be called from
+// several threads; build the pose query before sharing the context.
 class StageContext {
  public:
   StageContext(const Database& db, const ViewDescription& query, const CoarseResult& coarse);
@@ -96,6 +98,7 @@ class StageContext {
   PoseQuery pose_query_;
   bool have_pose_query_ = false;
   std::unordered_map<int, PointCloud> clouds_;
+  std::mutex clouds_mutex_;  // ViewCloud is called from the pose stages' threads
 };
 
 // Fine stage output.
