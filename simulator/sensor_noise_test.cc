@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "core/split_mix.h"
 #include "simulator/sensor_noise.h"
 
 namespace sope::internal {
@@ -14,11 +15,8 @@ namespace {
 constexpr int kRowLength = 1281;  // odd: the last deviate has no sine partner
 constexpr int kRows = 2000;       // 2.56 M deviates
 
-uint64_t RowSeed(int row) {  // splitmix64 of the row, as the rig seeds its rows
-  uint64_t value = static_cast<uint64_t>(row) + 0x9e3779b97f4a7c15ull;
-  value = (value ^ (value >> 30)) * 0xbf58476d1ce4e5b9ull;
-  value = (value ^ (value >> 27)) * 0x94d049bb133111ebull;
-  return value ^ (value >> 31);
+uint64_t RowSeed(int row) {  // as the rig seeds its rows: one SplitMix64 step
+  return SplitMix{static_cast<uint64_t>(row)}.Next();
 }
 
 std::vector<std::vector<float>> Rows() {

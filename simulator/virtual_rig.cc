@@ -13,6 +13,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
+#include "core/split_mix.h"
 #include "simulator/osmesa_context.h"
 #include "simulator/sensor_noise.h"
 #include "simulator/virtual_rig_internal.h"
@@ -464,14 +465,6 @@ void RenderIds(internal::IdRasteriser* rasteriser, const PinholeView& view,
   rasteriser->Render(view, device_from_model, near, far, ids);
 }
 
-// splitmix64: decorrelated per-row seeds from one per-call seed.
-uint64_t MixSeed(uint64_t value) {
-  value += 0x9e3779b97f4a7c15ull;
-  value = (value ^ (value >> 30)) * 0xbf58476d1ce4e5b9ull;
-  value = (value ^ (value >> 27)) * 0x94d049bb133111ebull;
-  return value ^ (value >> 31);
-}
-
 // One lit camera sample: its bilinear footprint in the projector image and its weight
 // (linear grey levels per unit of projector intensity).
 struct LitSample {
@@ -901,9 +894,10 @@ cv::Mat VirtualRig::Capture(const cv::Mat& projector_image) {
       const float* in = linear.ptr<float>(y);
       uint8_t* out = image.ptr<uint8_t>(y);
       if (noisy) {
-        // A row's deviates depend on the call's seed and the row only (any thread order).
-        internal::AddSensorNoise(MixSeed(call_seed ^ static_cast<uint64_t>(y)), in, width,
-                                 read_variance, shot_noise, noisy_row.data());
+        // A row's deviates depend on the call's seed and the row only (any thread order):
+        // decorrelated per-row seeds by one SplitMix64 step.
+        internal::AddSensorNoise(SplitMix{call_seed ^ static_cast<uint64_t>(y)}.Next(), in,
+                                 width, read_variance, shot_noise, noisy_row.data());
         in = noisy_row.data();
       }
       for (int x = 0; x < width; ++x) out[x] = d.Quantise(in[x]);
