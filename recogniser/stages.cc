@@ -8,6 +8,7 @@
 #include <limits>
 #include <mutex>
 #include <numeric>
+#include <system_error>
 #include <thread>
 #include <utility>
 
@@ -53,11 +54,12 @@ std::vector<RankedView> SeparatedViews(const Database& db, std::vector<RankedVie
   return chosen;
 }
 
-// Roll hypotheses of one view and a short ICP from each on a prefix of its cloud; the
-// best-scoring hypothesis, or nothing when the view gave no hypothesis.
 // Runs job(0) … job(count − 1) on `threads` threads (the calling one and threads − 1
-// more; all on the calling thread when threads ≤ 1), each job once; the first exception
-// a job throws is rethrown here after every thread has stopped.
+// more; all on the calling thread when threads ≤ 1), each job once, handed out one at a
+// time (the jobs' costs differ). When no more threads can be started, the started ones and
+// the caller share the jobs. The first exception a job throws is rethrown here after
+// every thread has stopped. (decoder/chunk_workers.h splits pixel chunks into fixed
+// contiguous shares instead: equal chunks, per-worker workspaces.)
 void RunJobs(int threads, size_t count, const std::function<void(size_t)>& job) {
   const size_t workers_wanted = std::min<size_t>(std::max(1, threads), count);
   if (workers_wanted <= 1) {
@@ -75,7 +77,11 @@ void RunJobs(int threads, size_t count, const std::function<void(size_t)>& job) 
     }
   };
   std::vector<std::thread> workers;
-  for (size_t t = 1; t < workers_wanted; ++t) workers.emplace_back(work, t);
+  try {
+    for (size_t t = 1; t < workers_wanted; ++t) workers.emplace_back(work, t);
+  } catch (const std::system_error&) {
+    // No more threads: those started and this one take every job.
+  }
   work(0);
   for (std::thread& worker : workers) worker.join();
   for (const std::exception_ptr& error : errors) {
@@ -83,6 +89,8 @@ void RunJobs(int threads, size_t count, const std::function<void(size_t)>& job) 
   }
 }
 
+// Roll hypotheses of one view and a short ICP from each on a prefix of its cloud; the
+// best-scoring hypothesis, or nothing when the view gave no hypothesis.
 bool ScreenView(StageContext* context, const RankedView& r, int model_index,
                 const PoseOptions& hypothesis_options, const PoseOptions& quick_options,
                 const RecognitionOptions& options, PoseCandidate* out) {
@@ -301,6 +309,7 @@ Rigid3d StageContext::cam_from_canonical() const {
 }
 
 const PoseQuery& StageContext::pose_query(const PoseOptions& options) {
+  std::lock_guard<std::mutex> lock(pose_query_mutex_);  // built once, then only read
   if (!have_pose_query_) {
     // The described query is already canonical: its sensor frame is the canonical frame.
     pose_query_ = PoseQueryOf(db_, query_.preprocessed, options);
@@ -446,7 +455,6 @@ std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& 
   }
   std::vector<PoseCandidate> screened(jobs.size());
   std::vector<uint8_t> found(jobs.size(), 0);
-  if (options.threads > 1) context->pose_query(options.pose);  // built once, then read
   RunJobs(options.threads, jobs.size(), [&](size_t j) {
     found[j] = ScreenView(context, jobs[j].second, jobs[j].first, request.hypotheses,
                           quick_options, options, &screened[j]);
@@ -480,7 +488,6 @@ RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> c
     refined_models.push_back(candidate.model);
     chosen.push_back(&candidate);
   }
-  if (options.threads > 1) context->pose_query(options.pose);  // built once, then read
   RunJobs(options.threads, chosen.size(), [&](size_t j) {
     RefineCandidate(context, refine_options, options, chosen[j]);
   });

@@ -69,8 +69,8 @@ bool RankedBefore(const RankedView& a, const RankedView& b);
 
 // What the stages after the coarse one share: the database, the query, its codes, the
 // canonical pose query (built on first use) and the decoded view clouds (each once).
-// Keeps references: db, query and coarse must outlive it. ViewCloud may be called from
-// several threads; build the pose query before sharing the context.
+// Keeps references: db, query and coarse must outlive it. pose_query and ViewCloud may be
+// called from several threads.
 class StageContext {
  public:
   StageContext(const Database& db, const ViewDescription& query, const CoarseResult& coarse);
@@ -97,8 +97,9 @@ class StageContext {
   double log_query_radius_ = 0.0;
   PoseQuery pose_query_;
   bool have_pose_query_ = false;
+  std::mutex pose_query_mutex_;  // pose_query and ViewCloud are called from the pose
   std::unordered_map<int, PointCloud> clouds_;
-  std::mutex clouds_mutex_;  // ViewCloud is called from the pose stages' threads
+  std::mutex clouds_mutex_;      // stages' threads (RecognitionOptions::threads)
 };
 
 // Fine stage output.
