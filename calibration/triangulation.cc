@@ -8,6 +8,7 @@
 #include <Eigen/Dense>
 #include <opencv2/core.hpp>
 
+#include "calibration/triangulation_rows.h"
 #include "core/error.h"
 
 namespace sope {
@@ -415,9 +416,6 @@ TriangulationResult Triangulator::TriangulateExact(const CorrespondenceMap& map,
   return result;
 }
 
-// Per-thread working arrays of the fast path: one camera row's candidate pixels as
-// structure-of-arrays (a few kB: they stay in L1), filled by one fused, branch-free loop
-// per row.
 namespace {
 
 // Candidates are processed in chunks of this many: the chunk's working arrays (~40 kB)
@@ -426,19 +424,24 @@ constexpr int kChunk = 64;
 
 }  // namespace
 
-// Per-thread working arrays of the fast path: one camera row's candidate pixels, and the
+// Per-thread working arrays of the fast path: one camera row's candidate pixels with their
+// rays and codes as contiguous arrays (triangulation_rows.h: SelectCandidates), and the
 // structure-of-arrays of one chunk of them. Each stage is its own loop over the chunk:
-// the gathers from the tables are short scalar loops (GCC does not vectorise gathers for
-// this CPU), the geometry loops read and write only contiguous arrays and vectorise.
+// the table lookups of the interpolation are short scalar loops (AVX-512 gathers measured
+// no faster on the 2-core machine), the geometry loops read and write only contiguous
+// arrays and vectorise; the accepted points go out through triangulation_rows::EmitRow.
 struct Triangulator::RowScratch {
   std::vector<int> xs;                           // candidate columns of the row
+  std::vector<float> ray_x_row, ray_y_row;       // per candidate, its camera ray
+  std::vector<float> coded_u_row, coded_v_row;   // per candidate, decoded (NaN: not coded)
   std::vector<float> point_x, point_y, point_z;  // per candidate, camera frame, metres
+  std::vector<float> z_or_nan;                   // EmitRow's scratch
   // 1 accepted, 0 rejected; exact 1: left to the exact per-point path.
   std::vector<uint8_t> ok, exact;
   int count = 0;  // candidates of the row
+  triangulation_rows::RowInputs inputs;  // the row they were picked from
 
   // One chunk: camera ray, decoded coordinates, interpolation state, intermediate results.
-  alignas(64) double ray_x[kChunk], ray_y[kChunk], coded_u[kChunk], coded_v[kChunk];
   alignas(64) double look_u[kChunk], look_v[kChunk];
   alignas(64) float frac_u[kChunk], frac_v[kChunk];
   alignas(64) int32_t index[kChunk];
@@ -450,9 +453,14 @@ struct Triangulator::RowScratch {
   alignas(64) uint8_t inside[kChunk], valid[kChunk], good[kChunk], done[kChunk],
       to_exact[kChunk];
 
-  void Resize(size_t n) {
+  // Room for a row of `width` candidates (and the slack of the row functions' 16-lane steps).
+  void Resize(size_t width) {
+    const size_t n = width + triangulation_rows::kSlack;
     if (xs.size() >= n) return;
-    for (std::vector<float>* v : {&point_x, &point_y, &point_z}) v->resize(n);
+    for (std::vector<float>* v : {&ray_x_row, &ray_y_row, &coded_u_row, &coded_v_row, &point_x,
+                                  &point_y, &point_z, &z_or_nan}) {
+      v->resize(n);
+    }
     for (std::vector<uint8_t>* v : {&ok, &exact}) v->resize(n);
     xs.resize(n);
   }
@@ -501,8 +509,9 @@ struct Grid {
 // (u[i], v[i]): inside[i] whether the point is on the grid ([0, w − 1] × [0, h − 1],
 // false for NaN); off it the value is that at (0, 0) (the caller sends such points to
 // the exact path or ignores them).
-void Interpolate(const Grid& grid_in, int n, const double* __restrict u_in,
-                 const double* __restrict v_in, Triangulator::RowScratch* w,
+template <typename T>
+void Interpolate(const Grid& grid_in, int n, const T* __restrict u_in,
+                 const T* __restrict v_in, Triangulator::RowScratch* w,
                  double* __restrict out0, double* __restrict out1, uint8_t* __restrict inside) {
   const Grid grid = grid_in;
   float* __restrict fu = w->frac_u;
@@ -510,7 +519,7 @@ void Interpolate(const Grid& grid_in, int n, const double* __restrict u_in,
   int32_t* __restrict index = w->index;
   const int last_x = grid.width - 2, last_y = grid.height - 2;
   for (int i = 0; i < n; ++i) {
-    const double u0 = u_in[i], v0 = v_in[i];
+    const double u0 = static_cast<double>(u_in[i]), v0 = static_cast<double>(v_in[i]);
     const bool in = (u0 >= 0) & (v0 >= 0) & (u0 <= grid.max_u) & (v0 <= grid.max_v);
     const double u = in ? u0 : 0.0, v = in ? v0 : 0.0;
     const int32_t x0 = std::min(static_cast<int32_t>(u), last_x);
@@ -555,26 +564,28 @@ inline void DistortPoint(const Lens& lens, double x, double y, double* xd, doubl
 // t_x − x_p·t_z, t_y − y_p·t_z), Cramer's rule), then the reprojection test (kReproject:
 // in front of the projector, within max_px of the decoded coordinates) and the depth band.
 template <bool kLinear, bool kReproject, bool kRational>
-void TwoAxisKernel(int n, const double* __restrict ray_x, const double* __restrict ray_y,
-                   const double* __restrict coded_u, const double* __restrict coded_v,
+void TwoAxisKernel(int n, const float* __restrict ray_x, const float* __restrict ray_y,
+                   const float* __restrict coded_u, const float* __restrict coded_v,
                    const double* __restrict proj_ray_x, const double* __restrict proj_ray_y,
                    const Pose& pose, const Lens& lens_in, double max_px, double min_depth,
-                   double max_depth, float* __restrict out_x, float* __restrict out_y,
-                   float* __restrict out_z, uint8_t* __restrict ok) {
-  const Lens lens = lens_in;
+                   double max_depth, Triangulator::RowScratch* w, float* __restrict out_x,
+                   float* __restrict out_y, float* __restrict out_z, uint8_t* __restrict ok) {
   const double r00 = pose.r[0], r01 = pose.r[1], r02 = pose.r[2];
   const double r10 = pose.r[3], r11 = pose.r[4], r12 = pose.r[5];
   const double r20 = pose.r[6], r21 = pose.r[7], r22 = pose.r[8];
   const double tx = pose.t[0], ty = pose.t[1], tz = pose.t[2];
-  const double c0 = pose.center_in_cam[0], c1 = pose.center_in_cam[1],
-               c2 = pose.center_in_cam[2];
-  const double max_px2 = max_px * max_px;
-  for (int i = 0; i < n; ++i) {
-    const double dcx = ray_x[i], dcy = ray_y[i];
-    const double ux = proj_ray_x[i], uy = proj_ray_y[i];
-    double px, py, pz;
-    bool good;
-    if constexpr (!kLinear) {
+  // Two loops (the point; then the tests), each with few enough live constants to stay in
+  // registers.
+  double* __restrict point_x = w->q_x;
+  double* __restrict point_y = w->q_y;
+  double* __restrict point_z = w->q_z;
+  uint8_t* __restrict good = w->good;
+  if constexpr (!kLinear) {
+    const double c0 = pose.center_in_cam[0], c1 = pose.center_in_cam[1],
+                 c2 = pose.center_in_cam[2];
+    for (int i = 0; i < n; ++i) {
+      const double dcx = ray_x[i], dcy = ray_y[i];
+      const double ux = proj_ray_x[i], uy = proj_ray_y[i];
       const double dpx = r00 * ux + r10 * uy + r20;
       const double dpy = r01 * ux + r11 * uy + r21;
       const double dpz = r02 * ux + r12 * uy + r22;
@@ -587,11 +598,15 @@ void TwoAxisKernel(int n, const double* __restrict ray_x, const double* __restri
       const double inverse = 1.0 / denominator;
       const double s = (dc * e - b * dp) * inverse;
       const double u = (b * dc - a * dp) * inverse;
-      px = 0.5 * (s * dcx + (c0 + u * dpx));
-      py = 0.5 * (s * dcy + (c1 + u * dpy));
-      pz = 0.5 * (s + (c2 + u * dpz));
-      good = std::abs(denominator) >= 1e-12 * a * e;
-    } else {
+      point_x[i] = 0.5 * (s * dcx + (c0 + u * dpx));
+      point_y[i] = 0.5 * (s * dcy + (c1 + u * dpy));
+      point_z[i] = 0.5 * (s + (c2 + u * dpz));
+      good[i] = std::abs(denominator) >= 1e-12 * a * e;
+    }
+  } else {
+    for (int i = 0; i < n; ++i) {
+      const double dcx = ray_x[i], dcy = ray_y[i];
+      const double ux = proj_ray_x[i], uy = proj_ray_y[i];
       const double a20 = ux * r20 - r00, a21 = ux * r21 - r01, a22 = ux * r22 - r02;
       const double a30 = uy * r20 - r10, a31 = uy * r21 - r11, a32 = uy * r22 - r12;
       const double b2 = tx - ux * tz, b3 = ty - uy * tz;
@@ -607,11 +622,17 @@ void TwoAxisKernel(int n, const double* __restrict ray_x, const double* __restri
       const double m11 = n00 * n22 - n02 * n02, m12 = n01 * n02 - n00 * n12,
                    m22 = n00 * n11 - n01 * n01;
       const double inverse = 1.0 / (n00 * m00 + n01 * m01 + n02 * m02);
-      px = (m00 * g0 + m01 * g1 + m02 * g2) * inverse;
-      py = (m01 * g0 + m11 * g1 + m12 * g2) * inverse;
-      pz = (m02 * g0 + m12 * g1 + m22 * g2) * inverse;
-      good = true;
+      point_x[i] = (m00 * g0 + m01 * g1 + m02 * g2) * inverse;
+      point_y[i] = (m01 * g0 + m11 * g1 + m12 * g2) * inverse;
+      point_z[i] = (m02 * g0 + m12 * g1 + m22 * g2) * inverse;
+      good[i] = 1;
     }
+  }
+  const Lens lens = lens_in;
+  const double max_px2 = max_px * max_px;
+  for (int i = 0; i < n; ++i) {
+    const double px = point_x[i], py = point_y[i], pz = point_z[i];
+    bool accept = good[i] != 0;
     if constexpr (kReproject) {
       const double xp = r00 * px + r01 * py + r02 * pz + tx;
       const double yp = r10 * px + r11 * py + r12 * pz + ty;
@@ -621,12 +642,12 @@ void TwoAxisKernel(int n, const double* __restrict ray_x, const double* __restri
       DistortPoint<kRational>(lens, xp * inverse_z, yp * inverse_z, &xd, &yd);
       const double ex = lens.fx * xd + lens.cx - coded_u[i];
       const double ey = lens.fy * yd + lens.cy - coded_v[i];
-      good = good & (zp > 0) & !(ex * ex + ey * ey > max_px2);
+      accept = accept & (zp > 0) & !(ex * ex + ey * ey > max_px2);
     }
     out_x[i] = static_cast<float>(px);
     out_y[i] = static_cast<float>(py);
     out_z[i] = static_cast<float>(pz);
-    ok[i] = good & (pz >= min_depth) & (pz <= max_depth);
+    ok[i] = accept & (pz >= min_depth) & (pz <= max_depth);
   }
 }
 
@@ -664,7 +685,7 @@ void RayPlaneStep(int n, const Pose& pose, const Lens& lens_in, const double* __
 
 // (coded, other) as (u, v) of the tables: u the column, v the row.
 template <bool kColumns>
-void PlaneTableCoordinates(int n, const double* __restrict coded, const double* __restrict other,
+void PlaneTableCoordinates(int n, const float* __restrict coded, const double* __restrict other,
                            double* __restrict u, double* __restrict v) {
   for (int i = 0; i < n; ++i) {
     u[i] = kColumns ? coded[i] : other[i];
@@ -694,13 +715,12 @@ void TableNormal(int n, const double* __restrict first, const double* __restrict
 template <bool kColumns, bool kRational>
 void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes,
                    const Grid& grid, double min_depth, double max_depth,
-                   Triangulator::RowScratch* w, float* __restrict out_x,
+                   const float* __restrict ray_x, const float* __restrict ray_y,
+                   const float* __restrict coded, Triangulator::RowScratch* w,
+                   float* __restrict out_x,
                    float* __restrict out_y, float* __restrict out_z, uint8_t* __restrict ok,
                    uint8_t* __restrict exact) {
   static_assert(kRayPlaneSteps == 3, "three steps below");
-  const double* __restrict ray_x = w->ray_x;
-  const double* __restrict ray_y = w->ray_y;
-  const double* __restrict coded = kColumns ? w->coded_u : w->coded_v;
   double* __restrict qx = w->q_x;
   double* __restrict qy = w->q_y;
   double* __restrict qz = w->q_z;
@@ -804,14 +824,6 @@ void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes
   }
 }
 
-// Asks the cache for `bytes` from `data` (a row the next call will stream): the hardware
-// prefetchers start late on each short row, and the rows' loads were the fast path's
-// largest stall.
-inline void PrefetchRange(const void* data, size_t bytes) {
-  const char* p = static_cast<const char*>(data);
-  for (size_t offset = 0; offset < bytes; offset += 64) __builtin_prefetch(p + offset, 0, 1);
-}
-
 // Colours of the accepted candidates of camera row y into `out` (grey or BGR → RGB).
 void GatherColors(const cv::Mat& white, int y, const int* xs, const uint8_t* ok, int n,
                   Color3ub* out) {
@@ -850,26 +862,17 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
   const float* map_y = map.HasY() ? map.proj_y.ptr<float>(y) : nullptr;
   const float* rays = camera_rays_.ptr<float>(y);
   w.Resize(static_cast<size_t>(camera_rays_.cols));
-  if (y + 1 < camera_rays_.rows) {
-    const int count = x_end - x_begin;
-    PrefetchRange(map.mask.ptr<uint8_t>(y + 1) + x_begin, count);
-    PrefetchRange(camera_rays_.ptr<float>(y + 1) + 2 * x_begin, 2 * sizeof(float) * count);
-    if (map_x) PrefetchRange(map.proj_x.ptr<float>(y + 1) + x_begin, sizeof(float) * count);
-    if (map_y) PrefetchRange(map.proj_y.ptr<float>(y + 1) + x_begin, sizeof(float) * count);
-  }
-  int n = 0;
-  int* __restrict xs = w.xs.data();
-  if (region_row == nullptr) {
-    for (int x = x_begin; x < x_end; ++x) {
-      xs[n] = x;
-      n += mask[x] != 0;
-    }
-  } else {
-    for (int x = x_begin; x < x_end; ++x) {
-      xs[n] = x;
-      n += (mask[x] != 0) & (region_row[x] != 0);
-    }
-  }
+  triangulation_rows::RowInputs& inputs = w.inputs;
+  inputs.mask = mask;
+  inputs.region = region_row;
+  inputs.rays = rays;
+  inputs.map_x = map_x;
+  inputs.map_y = map_y;
+  inputs.x_begin = x_begin;
+  inputs.x_end = x_end;
+  const int n = triangulation_rows::SelectCandidates(inputs, w.xs.data(), w.ray_x_row.data(),
+                                                     w.ray_y_row.data(), w.coded_u_row.data(),
+                                                     w.coded_v_row.data());
   w.count = n;
   if (n == 0) return;
   if (!fast_tables_) {
@@ -895,18 +898,13 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
   const Grid projector_grid(projector_rays_);
   const Grid planes(columns ? column_planes_ : row_planes_);
   const Grid margin_grid(projector_rays_with_margin_);
-  constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
   for (int begin = 0; begin < n; begin += kChunk) {
     const int m = std::min(kChunk, n - begin);
-    const int* __restrict cx = xs + begin;
-    // Gather the chunk's camera rays and decoded coordinates.
-    for (int i = 0; i < m; ++i) {
-      const int x = cx[i];
-      w.ray_x[i] = rays[2 * x];
-      w.ray_y[i] = rays[2 * x + 1];
-      w.coded_u[i] = map_x ? map_x[x] : kNaN;
-      w.coded_v[i] = map_y ? map_y[x] : kNaN;
-    }
+    // The chunk's camera rays and decoded coordinates.
+    const float* ray_x = w.ray_x_row.data() + begin;
+    const float* ray_y = w.ray_y_row.data() + begin;
+    const float* coded_u = w.coded_u_row.data() + begin;
+    const float* coded_v = w.coded_v_row.data() + begin;
     float* px = w.point_x.data() + begin;
     float* py = w.point_y.data() + begin;
     float* pz = w.point_z.data() + begin;
@@ -914,11 +912,11 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
     uint8_t* exact = w.exact.data() + begin;
     if (two_axes) {
       // The projector ray, bilinear in the grid; coordinates off it to the exact path.
-      Interpolate(projector_grid, m, w.coded_u, w.coded_v, &w, w.out0, w.out1, w.inside);
+      Interpolate(projector_grid, m, coded_u, coded_v, &w, w.out0, w.out1, w.inside);
       for (int i = 0; i < m; ++i) exact[i] = w.inside[i] == 0;
 #define SOPE_TWO_AXIS(L, R, Q)                                                                \
-  TwoAxisKernel<L, R, Q>(m, w.ray_x, w.ray_y, w.coded_u, w.coded_v, w.out0, w.out1, pose,    \
-                         lens, max_px, min_depth, max_depth, px, py, pz, ok)
+  TwoAxisKernel<L, R, Q>(m, ray_x, ray_y, coded_u, coded_v, w.out0, w.out1, pose,            \
+                         lens, max_px, min_depth, max_depth, &w, px, py, pz, ok)
       if (linear) {
         if (!reproject) SOPE_TWO_AXIS(true, false, false);
         else if (rational) SOPE_TWO_AXIS(true, true, true);
@@ -932,8 +930,8 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
       continue;
     }
 #define SOPE_RAY_PLANE(C, R)                                                                \
-  RayPlaneChunk<C, R>(m, pose, lens, planes, margin_grid, min_depth, max_depth, &w, px, py, \
-                      pz, ok, exact)
+  RayPlaneChunk<C, R>(m, pose, lens, planes, margin_grid, min_depth, max_depth, ray_x, ray_y, \
+                      columns ? coded_u : coded_v, &w, px, py, pz, ok, exact)
     if (columns) {
       if (rational) SOPE_RAY_PLANE(true, true);
       else SOPE_RAY_PLANE(true, false);
@@ -1005,7 +1003,8 @@ TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map, cons
       for (int y = block_begin[b]; y < block_begin[b + 1]; ++y) {
         const uint8_t* region_row = region.mask.empty() ? nullptr : region.mask.ptr<uint8_t>(y);
         float* depth = result.depth.ptr<float>(y);
-        std::fill(depth, depth + width, kNaN);
+        std::fill(depth, depth + roi.x, kNaN);
+        std::fill(depth + roi.x + roi.width, depth + width, kNaN);
         TriangulateRow(map, region_row, roi.x, roi.x + roi.width, y, &w);
         const int n = w.count;
         const int* xs = w.xs.data();
@@ -1017,7 +1016,10 @@ TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map, cons
         const uint8_t* exact = w.exact.data();
         const float* map_x = map.HasX() ? map.proj_x.ptr<float>(y) : nullptr;
         const float* map_y = map.HasY() ? map.proj_y.ptr<float>(y) : nullptr;
-        for (int i = 0; i < n; ++i) {
+        const void* first_exact = n > 0 ? std::memchr(exact, 1, static_cast<size_t>(n)) : nullptr;
+        const int exact_from =
+            first_exact ? static_cast<int>(static_cast<const uint8_t*>(first_exact) - exact) : n;
+        for (int i = exact_from; i < n; ++i) {
           if (exact[i] == 0) continue;
           const int x = xs[i];
           const std::optional<Eigen::Vector3d> point =
@@ -1029,18 +1031,12 @@ TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map, cons
             pz[i] = static_cast<float>(point->z());
           }
         }
-        // Compaction, branch-free: every candidate is written, the accepted ones kept.
         if (colour) GatherColors(white, y, xs, ok, n, colors + k);
-        size_t kept = k;
-        for (int i = 0; i < n; ++i) {
-          const int x = xs[i];
-          points[kept] = Eigen::Vector3f(px[i], py[i], pz[i]);
-          pixels[kept] = cv::Point(x, y);
-          depth[x] = ok[i] ? pz[i] : kNaN;
-          kept += ok[i];
-        }
-        rejected[b] += n - (kept - k);
-        k = kept;
+        const int kept = triangulation_rows::EmitRow(w.inputs, y, xs, px, py, pz, ok, n,
+                                                     w.z_or_nan.data(), points + k, pixels + k,
+                                                     depth);
+        rejected[b] += static_cast<size_t>(n - kept);
+        k += static_cast<size_t>(kept);
       }
       accepted[b] = k - offset[b];
     }
