@@ -447,6 +447,7 @@ struct Triangulator::RowScratch {
   alignas(64) int32_t index[kChunk];
   alignas(64) float top[4 * kChunk], bottom[4 * kChunk];  // (a, b) and (c, d) corner pairs
   alignas(64) double out0[kChunk], out1[kChunk], out2[kChunk];
+  // Ray–plane: q = r·d_c; two-axis: the point before its tests.
   alignas(64) double q_x[kChunk], q_y[kChunk], q_z[kChunk];
   alignas(64) double landed[kChunk], next[kChunk], numerator[kChunk], denominator[kChunk];
   alignas(64) double chord[4 * kChunk];

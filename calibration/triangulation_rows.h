@@ -40,6 +40,19 @@ struct RowInputs {
   int x_begin = 0, x_end = 0;
 };
 
+#if SOPE_TRIANGULATION_AVX512
+// The candidates (mask ∧ region) among the pixels x … x + 15 that `tail` keeps.
+inline __mmask16 CandidateLanes(const RowInputs& in, int x, __mmask16 tail) {
+  const __m128i m = _mm_maskz_loadu_epi8(tail, in.mask + x);
+  __mmask16 keep = _mm_mask_test_epi8_mask(tail, m, m);
+  if (in.region != nullptr) {
+    const __m128i r = _mm_maskz_loadu_epi8(tail, in.region + x);
+    keep = _mm_mask_test_epi8_mask(keep, r, r);
+  }
+  return keep;
+}
+#endif
+
 // The candidates' columns, rays and coordinates, in column order; returns their number.
 // Every output array holds at least (x_end − x_begin) + kSlack entries.
 inline int SelectCandidates(const RowInputs& in, int* __restrict xs, float* __restrict ray_x,
@@ -55,12 +68,7 @@ inline int SelectCandidates(const RowInputs& in, int* __restrict xs, float* __re
   for (int x = in.x_begin; x < in.x_end; x += 16) {
     const int count = in.x_end - x < 16 ? in.x_end - x : 16;
     const __mmask16 tail = static_cast<__mmask16>((1u << count) - 1u);
-    const __m128i m = _mm_maskz_loadu_epi8(tail, in.mask + x);
-    __mmask16 keep = _mm_mask_test_epi8_mask(tail, m, m);
-    if (in.region != nullptr) {
-      const __m128i r = _mm_maskz_loadu_epi8(tail, in.region + x);
-      keep = _mm_mask_test_epi8_mask(keep, r, r);
-    }
+    const __mmask16 keep = CandidateLanes(in, x, tail);
     if (keep == 0) continue;
     const __m512i columns = _mm512_add_epi32(_mm512_set1_epi32(x), iota);
     _mm512_storeu_si512(xs + n, _mm512_maskz_compress_epi32(keep, columns));
@@ -118,12 +126,7 @@ inline int EmitRow(const RowInputs& in, int y, const int* __restrict xs,
   for (int x = in.x_begin; x < in.x_end; x += 16) {
     const int count = in.x_end - x < 16 ? in.x_end - x : 16;
     const __mmask16 tail = static_cast<__mmask16>((1u << count) - 1u);
-    const __m128i m = _mm_maskz_loadu_epi8(tail, in.mask + x);
-    __mmask16 keep = _mm_mask_test_epi8_mask(tail, m, m);
-    if (in.region != nullptr) {
-      const __m128i r = _mm_maskz_loadu_epi8(tail, in.region + x);
-      keep = _mm_mask_test_epi8_mask(keep, r, r);
-    }
+    const __mmask16 keep = CandidateLanes(in, x, tail);
     _mm512_mask_storeu_ps(depth + x, tail, _mm512_mask_expandloadu_ps(nan, keep, z_or_nan + next));
     next += __builtin_popcount(keep);
   }
