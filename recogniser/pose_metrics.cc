@@ -45,6 +45,32 @@ double MeanClosestDistance(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree,
   return sum / static_cast<double>(query.size());
 }
 
+// Whether the mean distance from each of `query`, turned by (rotation, translation), to its
+// nearest neighbour in `tree` is below `limit`: the same answer as comparing
+// MeanClosestDistance of the transformed points, but it stops as soon as the partial sum
+// settles it (the terms are non-negative, so the sum only grows) — a turn that is not a
+// symmetry is usually decided after a few dozen of the points.
+bool MeanClosestDistanceBelow(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree,
+                              const std::vector<Eigen::Vector3f>& query,
+                              const Eigen::Matrix3d& rotation, const Eigen::Vector3d& translation,
+                              double limit) {
+  if (query.empty()) return 0.0 < limit;
+  const double count = static_cast<double>(query.size());
+  std::vector<int> index(1);
+  std::vector<float> squared(1);
+  double sum = 0.0;
+  pcl::PointXYZ point;
+  for (const Eigen::Vector3f& p : query) {
+    const Eigen::Vector3f q = (rotation * p.cast<double>() + translation).cast<float>();
+    point.x = q.x();
+    point.y = q.y();
+    point.z = q.z();
+    if (tree.nearestKSearch(point, 1, index, squared) > 0) sum += std::sqrt(squared[0]);
+    if (!(sum / count < limit)) return false;
+  }
+  return sum / count < limit;
+}
+
 std::vector<Eigen::Vector3f> Transformed(const std::vector<Eigen::Vector3f>& points,
                                          const Eigen::Matrix3d& rotation,
                                          const Eigen::Vector3d& translation) {
@@ -157,7 +183,7 @@ ModelSymmetry DetectSymmetry(const TriangleMesh& mesh, double tolerance_fraction
   // Is the turn `rotation` about the centroid a symmetry of the surface?
   auto is_symmetry = [&](const Eigen::Matrix3d& rotation) {
     const Eigen::Vector3d translation = centroid - rotation * centroid;
-    return MeanClosestDistance(tree, Transformed(query_points, rotation, translation)) < tolerance;
+    return MeanClosestDistanceBelow(tree, query_points, rotation, translation, tolerance);
   };
   auto turn = [](const Eigen::Vector3d& axis, double degrees) {
     return Eigen::AngleAxisd(degrees / kRadToDeg, axis).toRotationMatrix();
