@@ -28,6 +28,17 @@ pcl::PointCloud<pcl::PointXYZ>::Ptr ToPcl(const std::vector<Eigen::Vector3f>& po
   return cloud;
 }
 
+// Distance from `p` to its nearest neighbour in `tree` (0 when the tree finds none);
+// `index` and `squared` are the search's scratch (one entry each).
+double NearestDistance(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree, const Eigen::Vector3f& p,
+                       std::vector<int>* index, std::vector<float>* squared) {
+  pcl::PointXYZ point;
+  point.x = p.x();
+  point.y = p.y();
+  point.z = p.z();
+  return tree.nearestKSearch(point, 1, *index, *squared) > 0 ? std::sqrt((*squared)[0]) : 0.0;
+}
+
 // Mean distance from each of `query` to its nearest neighbour in `tree`.
 double MeanClosestDistance(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree,
                            const std::vector<Eigen::Vector3f>& query) {
@@ -35,13 +46,7 @@ double MeanClosestDistance(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree,
   std::vector<int> index(1);
   std::vector<float> squared(1);
   double sum = 0.0;
-  pcl::PointXYZ point;
-  for (const Eigen::Vector3f& p : query) {
-    point.x = p.x();
-    point.y = p.y();
-    point.z = p.z();
-    if (tree.nearestKSearch(point, 1, index, squared) > 0) sum += std::sqrt(squared[0]);
-  }
+  for (const Eigen::Vector3f& p : query) sum += NearestDistance(tree, p, &index, &squared);
   return sum / static_cast<double>(query.size());
 }
 
@@ -59,13 +64,9 @@ bool MeanClosestDistanceBelow(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree,
   std::vector<int> index(1);
   std::vector<float> squared(1);
   double sum = 0.0;
-  pcl::PointXYZ point;
   for (const Eigen::Vector3f& p : query) {
     const Eigen::Vector3f q = (rotation * p.cast<double>() + translation).cast<float>();
-    point.x = q.x();
-    point.y = q.y();
-    point.z = q.z();
-    if (tree.nearestKSearch(point, 1, index, squared) > 0) sum += std::sqrt(squared[0]);
+    sum += NearestDistance(tree, q, &index, &squared);
     if (!(sum / count < limit)) return false;
   }
   return sum / count < limit;
