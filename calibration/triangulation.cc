@@ -1015,8 +1015,8 @@ TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map, cons
         uint8_t* ok = w.ok.data();
         // The rare candidates left to the exact path.
         const uint8_t* exact = w.exact.data();
-        const float* map_x = map.HasX() ? map.proj_x.ptr<float>(y) : nullptr;
-        const float* map_y = map.HasY() ? map.proj_y.ptr<float>(y) : nullptr;
+        const float* map_x = w.inputs.map_x;  // the row's codes (nullptr: axis not coded)
+        const float* map_y = w.inputs.map_y;
         const void* first_exact = n > 0 ? std::memchr(exact, 1, static_cast<size_t>(n)) : nullptr;
         const int exact_from =
             first_exact ? static_cast<int>(static_cast<const uint8_t*>(first_exact) - exact) : n;

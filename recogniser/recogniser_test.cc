@@ -382,8 +382,8 @@ TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
   }
 }
 
-// Screening on several threads (ScreeningOptions::threads) gives the same answers as on
-// one, bit for bit, on the normal and on the widened search.
+// The pose stages on several threads (RecognitionOptions::threads) give the same answers as
+// on one, bit for bit, on the normal and on the widened search.
 TEST_F(RecogniserTest, ScreeningThreadsGiveTheSameAnswers) {
   const auto without_timing = [](const RecognitionResult& result) {
     nlohmann::json j = nlohmann::json::parse(RecognitionResultToJson(result));

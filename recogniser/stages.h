@@ -97,9 +97,11 @@ class StageContext {
   double log_query_radius_ = 0.0;
   PoseQuery pose_query_;
   bool have_pose_query_ = false;
-  std::mutex pose_query_mutex_;  // pose_query and ViewCloud are called from the pose
+  // pose_query and ViewCloud are called from the pose stages' threads
+  // (RecognitionOptions::threads): each cache has its own lock.
+  std::mutex pose_query_mutex_;
   std::unordered_map<int, PointCloud> clouds_;
-  std::mutex clouds_mutex_;      // stages' threads (RecognitionOptions::threads)
+  std::mutex clouds_mutex_;
 };
 
 // Fine stage output.
