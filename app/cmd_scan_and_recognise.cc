@@ -62,7 +62,7 @@ void Flags::Add(CLI::App& app) {
       ->excludes(camera_option);
   app.add_option("--db", db_path,
                  "Database (.sopedb, from sope build-db); default for the virtual rig: the "
-                 "cached procedural database (10 classes x 8 instances x 100 views)");
+                 "cached procedural database (10 classes x 16 instances x 100 views)");
   app.add_option("--calibration", calibration_path,
                  "Rig calibration YAML (--frames: default the one frames.json names; virtual: "
                  "default the virtual rig's true calibration)");

@@ -8,9 +8,10 @@ out=${2:-out/eval}
 data=${3:-../shared/data}
 mkdir -p "$out"
 
-# Class protocol: 8 training instances of each of the 10 procedural classes (seeds 100–107)
-# in the database, 3 unseen instances per class (seeds 1000–1002) as queries.
-[ -d "$out/train" ] || "$sope" objects --instances 8 --seed 100 --out "$out/train"
+# Class protocol: 16 training instances of each of the 10 procedural classes (seeds 100–115;
+# the default database's count) in the database, 3 unseen instances per class (seeds
+# 1000–1002) as queries.
+[ -d "$out/train" ] || "$sope" objects --instances 16 --seed 100 --out "$out/train"
 [ -d "$out/held_out" ] || "$sope" objects --instances 3 --seed 1000 --out "$out/held_out"
 [ -f "$out/class.sopedb" ] || "$sope" build-db --models "$out/train" --views 150 --out "$out/class.sopedb"
 [ -f "$out/class_thesis.sopedb" ] || "$sope" build-db --models "$out/train" --preset thesis --out "$out/class_thesis.sopedb"

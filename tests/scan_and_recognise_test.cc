@@ -388,7 +388,7 @@ TEST_F(ScanAndRecogniseCli, BadInputsAreOneClearLine) {
 }
 
 TEST(ScanAndRecogniseDefaultDb, IsBuiltOnceAndCached) {
-  // The first --virtual run without --db builds the default database (10 classes × 8
+  // The first --virtual run without --db builds the default database (10 classes × 16
   // instances × 100 views) into $XDG_CACHE_HOME/sope; the second finds it there.
   testing::ScratchDir scratch;
   const std::string env = "env XDG_CACHE_HOME=" + Quote(scratch.File("cache"));
