@@ -14,7 +14,7 @@ find_package(LAPACK REQUIRED)
 find_package(faiss REQUIRED)
 find_package(PCL 1.10 REQUIRED COMPONENTS common io kdtree search filters features
              registration sample_consensus)
-find_package(Qhull CONFIG REQUIRED)  # convex hulls of table-scene objects (simulator)
+find_package(Qhull CONFIG REQUIRED)  # convex hulls (core/convex_hull.h: table scenes, the plane prior)
 if(SOPE_WITH_OSMESA)
   find_path(OSMESA_INCLUDE_DIR GL/osmesa.h REQUIRED)
   find_library(OSMESA_LIBRARY OSMesa REQUIRED)

@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
 
+#include "core/convex_hull.h"
 #include "core/error.h"
 #include "core/stopwatch.h"
 #include "recogniser/features.h"
@@ -65,6 +66,7 @@ struct Hypothesis {
   double snap = 0.0;
   bool flipped = false;
   bool twin = false;  // a half-turn twin of another hypothesis, refined on its cluster
+  bool rested = false;  // turned onto a resting face of its model (it did not rest)
 };
 
 // Height of the model's surface centroid above the plane over the model's diameter (the
@@ -184,7 +186,13 @@ bool SnapToTable(const SceneContext& ctx, Hypothesis* h) {
   const PointCloud& surface =
       ctx.scene_recogniser.ModelSurface(front.model, ctx.options.model_leaf);
   const float lowest = LowestHeight(surface, front.cam_from_model, ctx.plane);
-  if (!std::isfinite(lowest) || std::abs(lowest) > ctx.options.max_float) return false;
+  if (!std::isfinite(lowest) || std::abs(lowest) > ctx.options.max_float) {
+    spdlog::debug("cluster {}: {} ({}, score {:.3f}) dropped: its lowest point {:.3f} m off "
+                  "the table (> {:.3f})", h->cluster, ctx.database.model(front.model).name,
+                  ctx.database.model(front.model).class_name, front.score, lowest,
+                  ctx.options.max_float);
+    return false;
+  }
   if (std::abs(lowest) <= ctx.options.max_snap) {
     front.cam_from_model.translation -=
         static_cast<double>(lowest) * ctx.plane.normal.cast<double>();
@@ -218,6 +226,55 @@ std::optional<Hypothesis> FlippedHypothesis(const SceneContext& ctx, const Hypot
   return flipped;
 }
 
+// The hypothesis turned the least that puts a stable face of its model's hull on the
+// table (about the model's centre; at most max_rest_turn_deg), then put down on it. Empty
+// when no resting face is that near.
+std::optional<Hypothesis> RestedHypothesis(const SceneContext& ctx, const Hypothesis& h) {
+  const SceneRecognitionOptions& options = ctx.options;
+  if (options.max_rest_turn_deg <= 0) return std::nullopt;
+  Hypothesis rested = h;
+  Suggestion& f = rested.recognition.suggestions[0];
+  const Eigen::Vector3d down = -ctx.plane.normal.cast<double>();
+  const Eigen::Matrix3d& rotation = f.cam_from_model.rotation;
+  double best = std::cos(options.max_rest_turn_deg * M_PI / 180.0);
+  std::optional<Eigen::Vector3d> face;
+  for (const Eigen::Vector3d& normal :
+       ctx.scene_recogniser.RestingNormals(f.model, options.model_leaf)) {
+    const double alignment = (rotation * normal).dot(down);
+    if (alignment >= best) {
+      best = alignment;
+      face = rotation * normal;
+    }
+  }
+  if (!face) {
+    spdlog::debug("{}: no resting face within {:.0f}° of its pose ({} faces)",
+                  ctx.database.model(f.model).name, options.max_rest_turn_deg,
+                  ctx.scene_recogniser.RestingNormals(f.model, options.model_leaf).size());
+    return std::nullopt;
+  }
+  const Eigen::Matrix3d turn = Eigen::Quaterniond::FromTwoVectors(*face, down).toRotationMatrix();
+  const Eigen::Vector3d centre = f.cam_from_model * ctx.database.model(f.model).center;
+  f.cam_from_model.rotation = turn * rotation;
+  f.cam_from_model.translation = turn * (f.cam_from_model.translation - centre) + centre;
+  const PointCloud& surface = ctx.scene_recogniser.ModelSurface(f.model, options.model_leaf);
+  const float lowest = LowestHeight(surface, f.cam_from_model, ctx.plane);
+  if (!std::isfinite(lowest)) return std::nullopt;
+  f.cam_from_model.translation -= static_cast<double>(lowest) * ctx.plane.normal.cast<double>();
+  rested.snap = -lowest;
+  rested.rested = true;
+  return rested;
+}
+
+// Puts the hypothesis down on the table: snapped when it nearly rests on it, else turned
+// onto its nearest resting face (RestedHypothesis); false when neither.
+bool PutOnTable(const SceneContext& ctx, Hypothesis* h) {
+  if (SnapToTable(ctx, h)) return true;
+  std::optional<Hypothesis> rested = RestedHypothesis(ctx, *h);
+  if (!rested) return false;
+  *h = std::move(*rested);
+  return true;
+}
+
 // Recognises `points` of `cluster` and adds up to hypotheses_per_cluster hypotheses (each
 // posed suggestion scoring at least min_hypothesis_score, put down on the table, and its
 // flipped twin) to the pool.
@@ -233,7 +290,14 @@ void AddClusterHypotheses(const SceneContext& ctx, int cluster, const PointCloud
   for (size_t s = 0; s < recognition.suggestions.size() && taken < options.hypotheses_per_cluster;
        ++s) {
     const Suggestion& suggestion = recognition.suggestions[s];
-    if (!suggestion.posed || suggestion.score < options.min_hypothesis_score) continue;
+    if (!suggestion.posed || suggestion.score < options.min_hypothesis_score) {
+      spdlog::debug("cluster {}: suggestion {} ({}) dropped: {}", cluster, s,
+                    ctx.database.model(suggestion.model).name,
+                    suggestion.posed ? fmt::format("score {:.3f} < {:.3f}", suggestion.score,
+                                                   options.min_hypothesis_score)
+                                     : std::string("not posed"));
+      continue;
+    }
     Hypothesis h;
     h.cluster = cluster;
     h.recognition = recognition;
@@ -241,7 +305,7 @@ void AddClusterHypotheses(const SceneContext& ctx, int cluster, const PointCloud
     if (s != 0) {
       h.recognition.recognised = suggestion.score >= options.recognition.assembly.min_score;
     }
-    if (on_table && !SnapToTable(ctx, &h)) continue;
+    if (on_table && !PutOnTable(ctx, &h)) continue;
     if (on_table && options.flip_hypotheses) {
       std::optional<Hypothesis> flipped = FlippedHypothesis(ctx, h);
       if (flipped) pool->hypotheses.push_back(std::move(*flipped));
@@ -311,7 +375,7 @@ bool AddTwinHypotheses(const SceneContext& ctx, const PointCloud& points,
       front.cam_from_model = cam_from_canonical * icp.canonical_from_model;
       front.icp_iterations = icp.iterations;
       front.icp_rms = icp.rms;
-      if (on_table && !SnapToTable(ctx, &twin)) continue;
+      if (on_table && !PutOnTable(ctx, &twin)) continue;
       pool->hypotheses.push_back(std::move(twin));
       added = true;
     }
@@ -586,12 +650,13 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
     const HypothesisEvidence& e = evidence[h];
     const Eigen::Vector3f& c = ctx.clusters[hypotheses[h].cluster].centroid;
     spdlog::debug("hypothesis cluster={} centroid=({:.4f},{:.4f},{:.4f}) class={} model={} "
-                  "score={:.3f} class_p={:.3f} flipped={} twin={} fit={:.3f} local={:.3f} "
+                  "score={:.3f} class_p={:.3f} flipped={} twin={} rested={} fit={:.3f} local={:.3f} "
                   "viol={:.3f} visible={} explained={} duplicates={} violations={} passes={} "
                   "accepted={} class_level={} why={}",
                   hypotheses[h].cluster, c.x(), c.y(), c.z(), s.class_name, s.model_name,
                   s.score, ClassProbability(hypotheses[h].recognition, s.class_index),
-                  hypotheses[h].flipped, hypotheses[h].twin, e.model_fit, e.local_explained,
+                  hypotheses[h].flipped, hypotheses[h].twin, hypotheses[h].rested, e.model_fit,
+                  e.local_explained,
                   e.violation_fraction,
                   e.visible, e.explained.size(), e.duplicates, e.violations, e.passes,
                   e.accepted, e.class_level,
@@ -719,6 +784,7 @@ std::string RejectionReason(const HypothesisEvidence& e, const SceneVerification
 struct SceneRecogniser::Cache {
   std::mutex mutex;
   std::map<std::pair<int, double>, std::unique_ptr<PointCloud>> surfaces;
+  std::map<std::pair<int, double>, std::unique_ptr<std::vector<Eigen::Vector3d>>> resting;
 };
 
 void SceneRecognitionOptions::Check() const {
@@ -732,6 +798,9 @@ void SceneRecognitionOptions::Check() const {
              "scene recognition: min hypothesis score must be in [0, 1], got {}",
              min_hypothesis_score);
   SOPE_CHECK(max_snap >= 0, "scene recognition: max snap must be ≥ 0 m, got {}", max_snap);
+  SOPE_CHECK(max_rest_turn_deg >= 0 && max_rest_turn_deg <= 180,
+             "scene recognition: max rest turn must be in [0, 180] degrees, got {}",
+             max_rest_turn_deg);
   SOPE_CHECK(max_float >= max_snap, "scene recognition: max float must be ≥ max snap ({} m), got {}",
              max_snap, max_float);
   SOPE_CHECK(max_recognition_points >= 100,
@@ -788,6 +857,27 @@ const PointCloud& SceneRecogniser::ModelSurface(int model, double leaf) const {
     }
   }
   slot = std::move(surface);
+  return *slot;
+}
+
+const std::vector<Eigen::Vector3d>& SceneRecogniser::RestingNormals(int model,
+                                                                    double leaf) const {
+  const PointCloud& surface = ModelSurface(model, leaf);
+  std::lock_guard<std::mutex> lock(cache_->mutex);
+  std::unique_ptr<std::vector<Eigen::Vector3d>>& slot = cache_->resting[{model, leaf}];
+  if (slot) return *slot;
+  slot = std::make_unique<std::vector<Eigen::Vector3d>>();
+  std::vector<Eigen::Vector3d> points;
+  points.reserve(surface.size());
+  for (const Eigen::Vector3f& p : surface.points) points.push_back(p.cast<double>());
+  try {
+    const ConvexHull hull = ComputeConvexHull(points);
+    for (const RestingFace& face : StableFaces(hull, hull.centroid)) {
+      slot->push_back(hull.facets[face.facet].normal);
+    }
+  } catch (const Error& e) {
+    spdlog::debug("model {}: no resting faces ({})", database_.model(model).name, e.what());
+  }
   return *slot;
 }
 

@@ -46,6 +46,12 @@ struct SceneRecognitionOptions {
   // stability_weight × (height of its centre of mass above the table / its diameter) of
   // its explained points — of two that explain the scene alike, the lower one wins.
   bool flip_hypotheses = true;
+  // A posed suggestion that does not rest on the table (lowest point more than max_float
+  // off the plane: an unseen instance fitted to the seen side, its unseen side sunk into
+  // the table) is replaced by its nearest resting pose: turned the least (at most
+  // max_rest_turn_deg) that puts a stable face of its model's hull on the table, then put
+  // down on it. 0: such suggestions are dropped.
+  double max_rest_turn_deg = 45.0;
   double stability_weight = 0.2;
   // Clusters of more points are evenly subsampled to this many before recognition (the
   // recogniser thins to its 4 mm voxel leaf anyway; a dense scan has ~10 points per voxel).
@@ -168,6 +174,10 @@ class SceneRecogniser {
   // The model's surface sample (union of its database views, voxel-thinned at `leaf`,
   // model frame, with normals); built once per model and leaf.
   const PointCloud& ModelSurface(int model, double leaf) const;
+  // The outward unit normals (model frame) of the faces the model can rest on: the
+  // statically stable facets of the convex hull of ModelSurface(model, leaf) for the
+  // hull's centroid (core/convex_hull.h); empty when the hull is degenerate. Built once.
+  const std::vector<Eigen::Vector3d>& RestingNormals(int model, double leaf) const;
 
  private:
   struct Cache;

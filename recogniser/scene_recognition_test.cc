@@ -265,6 +265,26 @@ TEST_F(SceneRecognitionTest, UnseenInstancesPassAtClassLevelAndClutterDoesNot) {
   }
 }
 
+// The plane prior's resting faces (SceneRecogniser::RestingNormals, from the hull of the
+// model's surface sample): every procedural object stands on its flat base (the model's
+// z = 0 plane, outward normal −z), so that face must be among them; a box also rests on
+// its four sides and its top.
+TEST_F(SceneRecognitionTest, ModelsRestOnTheirBase) {
+  const SceneRecogniser recogniser(*db_);
+  const SceneRecognitionOptions options;
+  for (int m = 0; m < db_->num_models(); ++m) {
+    const std::vector<Eigen::Vector3d>& normals = recogniser.RestingNormals(m, options.model_leaf);
+    double best = -1.0;
+    for (const Eigen::Vector3d& n : normals) best = std::max(best, n.dot(-Eigen::Vector3d::UnitZ()));
+    EXPECT_GT(best, std::cos(2.0 * M_PI / 180.0))
+        << db_->model(m).name << ": no resting face within 2° of its base (" << normals.size()
+        << " faces)";
+    if (db_->model(m).class_name == "box") EXPECT_EQ(normals.size(), 6u) << db_->model(m).name;
+    // Built once: the same vector on the second call.
+    EXPECT_EQ(&normals, &recogniser.RestingNormals(m, options.model_leaf));
+  }
+}
+
 TEST_F(SceneRecognitionTest, EmptyTableAndNoPlaneAreEmptyResults) {
   const TableFrame frame;
   Scene table;

@@ -28,6 +28,8 @@
 #include <Eigen/Core>
 #include <opencv2/core/mat.hpp>
 
+#include "core/convex_hull.h"
+
 #include "core/camera_model.h"
 #include "core/mesh.h"
 #include "core/rig_calibration.h"
@@ -171,38 +173,19 @@ std::string TableGroundTruthJson(const TableScene& scene);
 
 namespace internal {
 
-// A convex hull (qhull) of points: merged facets with outward unit normals.
-struct HullFacet {
-  Eigen::Vector3d normal;  // outward, unit
-  double offset = 0.0;     // normal·x + offset = 0 on the facet, < 0 inside
-  std::vector<Eigen::Vector3d> polygon;  // facet vertices in order around the normal
-};
-struct ConvexHull {
-  std::vector<Eigen::Vector3d> vertices;
-  std::vector<HullFacet> facets;
-  double volume = 0.0;
-  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();  // of the solid hull
-  // Signed distance of `point` outside the hull (max over facets of normal·x + offset).
-  double Distance(const Eigen::Vector3d& point) const;
-};
-ConvexHull ComputeConvexHull(const std::vector<Eigen::Vector3d>& points);
-
-// Centre of mass of the solid bounded by `mesh` (uniform density); falls back to the
-// hull's centroid when the mesh is not a closed solid of positive volume close to it.
-Eigen::Vector3d CenterOfMass(const TriangleMesh& mesh, const ConvexHull& hull);
-
-struct RestingFace {
-  int facet = -1;
-  double probability = 0.0;  // solid angle / 4π
-  double stability_margin = 0.0;  // distance of the projected centre inside the polygon, m
-};
-// The statically stable faces of `hull` for centre of mass `center`, most probable first.
-std::vector<RestingFace> StableFaces(const ConvexHull& hull, const Eigen::Vector3d& center);
+// The convex hull, centre of mass and resting faces live in core/convex_hull.h (the
+// recogniser's plane prior uses them too).
+using sope::ComputeConvexHull;
+using sope::ConvexHull;
+using sope::CenterOfMass;
+using sope::ConvexHull2d;
+using sope::HullFacet;
+using sope::RestingFace;
+using sope::StableFaces;
 
 // 2-D convex polygons (counter-clockwise): penetration depth along the best separating
 // axis (≤ 0: disjoint or touching, > 0: overlapping by that much).
 double PolygonOverlap(const std::vector<Eigen::Vector2d>& a, const std::vector<Eigen::Vector2d>& b);
-std::vector<Eigen::Vector2d> ConvexHull2d(std::vector<Eigen::Vector2d> points);
 
 }  // namespace internal
 }  // namespace sope
