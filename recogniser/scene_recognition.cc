@@ -24,12 +24,19 @@
 namespace sope {
 namespace {
 
+// The integer coordinates of the cell of `p` (cells 1 / inv_leaf wide), offset to be
+// non-negative, and their packed key.
+Eigen::Matrix<int64_t, 3, 1> VoxelCoords(const Eigen::Vector3f& p, float inv_leaf) {
+  return {static_cast<int64_t>(std::floor(p.x() * inv_leaf)) + (1 << 20),
+          static_cast<int64_t>(std::floor(p.y() * inv_leaf)) + (1 << 20),
+          static_cast<int64_t>(std::floor(p.z() * inv_leaf)) + (1 << 20)};
+}
+uint64_t PackVoxel(const Eigen::Matrix<int64_t, 3, 1>& c) {
+  return (static_cast<uint64_t>(c.x()) << 42) ^ (static_cast<uint64_t>(c.y()) << 21) ^
+         static_cast<uint64_t>(c.z());
+}
 uint64_t VoxelKey(const Eigen::Vector3f& p, float inv_leaf) {
-  const auto cx = static_cast<int64_t>(std::floor(p.x() * inv_leaf)) + (1 << 20);
-  const auto cy = static_cast<int64_t>(std::floor(p.y() * inv_leaf)) + (1 << 20);
-  const auto cz = static_cast<int64_t>(std::floor(p.z() * inv_leaf)) + (1 << 20);
-  return (static_cast<uint64_t>(cx) << 42) ^ (static_cast<uint64_t>(cy) << 21) ^
-         static_cast<uint64_t>(cz);
+  return PackVoxel(VoxelCoords(p, inv_leaf));
 }
 
 // Scene points to explain: the clusters' points thinned to one per voxel (the first), each
@@ -392,27 +399,44 @@ std::vector<std::pair<int, int>> NeighbouringLabels(const ThinnedScene& scene,
                                                     double distance) {
   const float inv_cell = static_cast<float>(1.0 / distance);
   const float distance2 = static_cast<float>(distance * distance);
-  std::unordered_map<uint64_t, std::vector<int>> cells;
+  // Each cell's points and the range of their labels: a pair of cells is searched only
+  // when the neighbour holds a label above the cell's least (most cells lie inside one
+  // cluster and are skipped whole).
+  struct Cell {
+    Eigen::Matrix<int64_t, 3, 1> coords;
+    std::vector<int> points;
+    int min_label = std::numeric_limits<int>::max();
+    int max_label = -1;
+  };
+  std::unordered_map<uint64_t, Cell> cells;
   for (size_t j = 0; j < scene.points.size(); ++j) {
-    if (label[j] < 0) continue;
-    cells[VoxelKey(scene.points.points[j], inv_cell)].push_back(static_cast<int>(j));
+    const int l = label[j];
+    if (l < 0) continue;
+    const Eigen::Matrix<int64_t, 3, 1> coords = VoxelCoords(scene.points.points[j], inv_cell);
+    Cell& cell = cells[PackVoxel(coords)];
+    cell.coords = coords;
+    cell.points.push_back(static_cast<int>(j));
+    cell.min_label = std::min(cell.min_label, l);
+    cell.max_label = std::max(cell.max_label, l);
   }
   std::vector<uint8_t> near(static_cast<size_t>(num_labels) * num_labels, 0);
-  for (size_t j = 0; j < scene.points.size(); ++j) {
-    const int a = label[j];
-    if (a < 0) continue;
-    const Eigen::Vector3f& p = scene.points.points[j];
+  for (const auto& [key, cell] : cells) {
     for (int dx = -1; dx <= 1; ++dx) {
       for (int dy = -1; dy <= 1; ++dy) {
         for (int dz = -1; dz <= 1; ++dz) {
-          const Eigen::Vector3f q = p + Eigen::Vector3f(dx, dy, dz) * static_cast<float>(distance);
-          const auto it = cells.find(VoxelKey(q, inv_cell));
-          if (it == cells.end()) continue;
-          for (const int k : it->second) {
-            const int b = label[k];
-            if (b <= a || near[a * num_labels + b]) continue;
-            if ((scene.points.points[k] - p).squaredNorm() <= distance2) {
-              near[a * num_labels + b] = 1;
+          const auto it = cells.find(PackVoxel(cell.coords + Eigen::Matrix<int64_t, 3, 1>(dx, dy, dz)));
+          if (it == cells.end() || it->second.max_label <= cell.min_label) continue;
+          const Cell& other = it->second;
+          for (const int j : cell.points) {
+            const int a = label[j];
+            if (other.max_label <= a) continue;
+            const Eigen::Vector3f& p = scene.points.points[j];
+            for (const int k : other.points) {
+              const int b = label[k];
+              if (b <= a || near[a * num_labels + b]) continue;
+              if ((scene.points.points[k] - p).squaredNorm() <= distance2) {
+                near[a * num_labels + b] = 1;
+              }
             }
           }
         }
