@@ -420,11 +420,13 @@ std::vector<std::pair<int, int>> NeighbouringLabels(const ThinnedScene& scene,
     cell.max_label = std::max(cell.max_label, l);
   }
   std::vector<uint8_t> near(static_cast<size_t>(num_labels) * num_labels, 0);
-  for (const auto& [key, cell] : cells) {
+  for (const auto& entry : cells) {
+    const Cell& cell = entry.second;
     for (int dx = -1; dx <= 1; ++dx) {
       for (int dy = -1; dy <= 1; ++dy) {
         for (int dz = -1; dz <= 1; ++dz) {
-          const auto it = cells.find(PackVoxel(cell.coords + Eigen::Matrix<int64_t, 3, 1>(dx, dy, dz)));
+          const Eigen::Matrix<int64_t, 3, 1> offset(dx, dy, dz);
+          const auto it = cells.find(PackVoxel(cell.coords + offset));
           if (it == cells.end() || it->second.max_label <= cell.min_label) continue;
           const Cell& other = it->second;
           for (const int j : cell.points) {
@@ -674,7 +676,8 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
     const HypothesisEvidence& e = evidence[h];
     const Eigen::Vector3f& c = ctx.clusters[hypotheses[h].cluster].centroid;
     spdlog::debug("hypothesis cluster={} centroid=({:.4f},{:.4f},{:.4f}) class={} model={} "
-                  "score={:.3f} class_p={:.3f} flipped={} twin={} rested={} fit={:.3f} local={:.3f} "
+                  "score={:.3f} class_p={:.3f} flipped={} twin={} rested={} fit={:.3f} "
+                  "local={:.3f} "
                   "viol={:.3f} visible={} explained={} duplicates={} violations={} passes={} "
                   "accepted={} class_level={} why={}",
                   hypotheses[h].cluster, c.x(), c.y(), c.z(), s.class_name, s.model_name,

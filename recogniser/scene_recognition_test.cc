@@ -275,7 +275,9 @@ TEST_F(SceneRecognitionTest, ModelsRestOnTheirBase) {
   for (int m = 0; m < db_->num_models(); ++m) {
     const std::vector<Eigen::Vector3d>& normals = recogniser.RestingNormals(m, options.model_leaf);
     double best = -1.0;
-    for (const Eigen::Vector3d& n : normals) best = std::max(best, n.dot(-Eigen::Vector3d::UnitZ()));
+    for (const Eigen::Vector3d& n : normals) {
+      best = std::max(best, n.dot(-Eigen::Vector3d::UnitZ()));
+    }
     EXPECT_GT(best, std::cos(2.0 * M_PI / 180.0))
         << db_->model(m).name << ": no resting face within 2° of its base (" << normals.size()
         << " faces)";
