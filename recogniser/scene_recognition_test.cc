@@ -281,7 +281,9 @@ TEST_F(SceneRecognitionTest, ModelsRestOnTheirBase) {
     EXPECT_GT(best, std::cos(2.0 * M_PI / 180.0))
         << db_->model(m).name << ": no resting face within 2° of its base (" << normals.size()
         << " faces)";
-    if (db_->model(m).class_name == "box") EXPECT_EQ(normals.size(), 6u) << db_->model(m).name;
+    if (db_->model(m).class_name == "box") {
+      EXPECT_EQ(normals.size(), 6u) << db_->model(m).name;
+    }
     // Built once: the same vector on the second call.
     EXPECT_EQ(&normals, &recogniser.RestingNormals(m, options.model_leaf));
   }
