@@ -15,7 +15,7 @@ echo "== decode"
 echo "== scan"
 "$sope" scan --frames "$out/frames" --out "$out/cloud.ply"
 echo "== scan and recognise: 2 tables of 3-5 household objects, each segmented, named and"
-echo "   posed (the first run builds the default database, ~2 CPU-minutes, cached in"
+echo "   posed (the first run builds the default database, ~5 CPU-minutes, cached in"
 echo "   \${XDG_CACHE_HOME:-~/.cache}/sope; the objects are the database's own instances)"
 rm -rf "$out/table" "$out/recognise"  # results.jsonl would otherwise collect every run
 "$sope" scan-and-recognise --virtual --table --instances database --seed 3 --scans 2 \
