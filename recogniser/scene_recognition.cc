@@ -208,27 +208,36 @@ bool SnapToTable(const SceneContext& ctx, Hypothesis* h) {
   return true;
 }
 
+// Turns the hypothesis by `turn` about its model's centre and puts it down on the table
+// (its lowest point onto the plane, `snap` the shift); false, leaving it half-changed, when
+// that point was more than `max_lift` metres off the plane (or none was found).
+bool TurnOntoTable(const SceneContext& ctx, const Eigen::Matrix3d& turn, double max_lift,
+                   Hypothesis* h) {
+  Suggestion& f = h->recognition.suggestions[0];
+  const Eigen::Vector3d centre = f.cam_from_model * ctx.database.model(f.model).center;
+  f.cam_from_model.rotation = turn * f.cam_from_model.rotation;
+  f.cam_from_model.translation = turn * (f.cam_from_model.translation - centre) + centre;
+  const PointCloud& surface = ctx.scene_recogniser.ModelSurface(f.model, ctx.options.model_leaf);
+  const float lowest = LowestHeight(surface, f.cam_from_model, ctx.plane);
+  if (!std::isfinite(lowest) || std::abs(lowest) > max_lift) return false;
+  f.cam_from_model.translation -= static_cast<double>(lowest) * ctx.plane.normal.cast<double>();
+  h->snap = -lowest;
+  return true;
+}
+
 // The same hypothesis turned upside down (half a turn about a horizontal axis through its
 // centre), put down on the table: objects whose visible side looks alike both ways up (a
 // bottle with its top cut off by the image border) are then decided by the data and, on a
 // tie, by the lower centre of mass (a resting object rests stably). Empty when the turned
 // pose does not rest on the table.
 std::optional<Hypothesis> FlippedHypothesis(const SceneContext& ctx, const Hypothesis& h) {
-  const TablePlane& plane = ctx.plane;
+  const Eigen::Vector3d normal = ctx.plane.normal.cast<double>();
+  const Eigen::Vector3d axis = (Eigen::Vector3d::UnitX() - normal * normal.x()).normalized();
   Hypothesis flipped = h;
-  Suggestion& f = flipped.recognition.suggestions[0];
-  const PointCloud& surface = ctx.scene_recogniser.ModelSurface(f.model, ctx.options.model_leaf);
-  const Eigen::Vector3d centre = f.cam_from_model * ctx.database.model(f.model).center;
-  Eigen::Vector3d axis =
-      Eigen::Vector3d::UnitX() - plane.normal.cast<double>() * plane.normal.cast<double>().x();
-  axis.normalize();
-  const Eigen::Matrix3d turn = Eigen::AngleAxisd(M_PI, axis).toRotationMatrix();
-  f.cam_from_model.rotation = turn * f.cam_from_model.rotation;
-  f.cam_from_model.translation = turn * (f.cam_from_model.translation - centre) + centre;
-  const float lowest = LowestHeight(surface, f.cam_from_model, plane);
-  if (!std::isfinite(lowest) || std::abs(lowest) > ctx.options.max_float) return std::nullopt;
-  f.cam_from_model.translation -= static_cast<double>(lowest) * plane.normal.cast<double>();
-  flipped.snap = -lowest;
+  if (!TurnOntoTable(ctx, Eigen::AngleAxisd(M_PI, axis).toRotationMatrix(),
+                     ctx.options.max_float, &flipped)) {
+    return std::nullopt;
+  }
   flipped.flipped = true;
   return flipped;
 }
@@ -239,14 +248,14 @@ std::optional<Hypothesis> FlippedHypothesis(const SceneContext& ctx, const Hypot
 std::optional<Hypothesis> RestedHypothesis(const SceneContext& ctx, const Hypothesis& h) {
   const SceneRecognitionOptions& options = ctx.options;
   if (options.max_rest_turn_deg <= 0) return std::nullopt;
-  Hypothesis rested = h;
-  Suggestion& f = rested.recognition.suggestions[0];
+  const Suggestion& s = h.recognition.suggestions[0];
   const Eigen::Vector3d down = -ctx.plane.normal.cast<double>();
-  const Eigen::Matrix3d& rotation = f.cam_from_model.rotation;
+  const Eigen::Matrix3d& rotation = s.cam_from_model.rotation;
+  const std::vector<Eigen::Vector3d>& normals =
+      ctx.scene_recogniser.RestingNormals(s.model, options.model_leaf);
   double best = std::cos(options.max_rest_turn_deg * M_PI / 180.0);
   std::optional<Eigen::Vector3d> face;
-  for (const Eigen::Vector3d& normal :
-       ctx.scene_recogniser.RestingNormals(f.model, options.model_leaf)) {
+  for (const Eigen::Vector3d& normal : normals) {
     const double alignment = (rotation * normal).dot(down);
     if (alignment >= best) {
       best = alignment;
@@ -255,19 +264,15 @@ std::optional<Hypothesis> RestedHypothesis(const SceneContext& ctx, const Hypoth
   }
   if (!face) {
     spdlog::debug("{}: no resting face within {:.0f}° of its pose ({} faces)",
-                  ctx.database.model(f.model).name, options.max_rest_turn_deg,
-                  ctx.scene_recogniser.RestingNormals(f.model, options.model_leaf).size());
+                  ctx.database.model(s.model).name, options.max_rest_turn_deg, normals.size());
     return std::nullopt;
   }
-  const Eigen::Matrix3d turn = Eigen::Quaterniond::FromTwoVectors(*face, down).toRotationMatrix();
-  const Eigen::Vector3d centre = f.cam_from_model * ctx.database.model(f.model).center;
-  f.cam_from_model.rotation = turn * rotation;
-  f.cam_from_model.translation = turn * (f.cam_from_model.translation - centre) + centre;
-  const PointCloud& surface = ctx.scene_recogniser.ModelSurface(f.model, options.model_leaf);
-  const float lowest = LowestHeight(surface, f.cam_from_model, ctx.plane);
-  if (!std::isfinite(lowest)) return std::nullopt;
-  f.cam_from_model.translation -= static_cast<double>(lowest) * ctx.plane.normal.cast<double>();
-  rested.snap = -lowest;
+  Hypothesis rested = h;
+  // Turned onto the face it is put down whatever its height was (it did not rest).
+  if (!TurnOntoTable(ctx, Eigen::Quaterniond::FromTwoVectors(*face, down).toRotationMatrix(),
+                     std::numeric_limits<double>::infinity(), &rested)) {
+    return std::nullopt;
+  }
   rested.rested = true;
   return rested;
 }
