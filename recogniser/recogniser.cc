@@ -149,7 +149,8 @@ const std::vector<OptionField<WideningOptions>>& WideningOptions::Fields() {
   static const std::vector<OptionField<O>> fields = {
       Field(&O::below_score, "below_score",
             "Widen the pose search when the best verification score is below this (0: off)")
-          .AtLeast(0.0),
+          .AtLeast(0.0)
+          .Flag("--widen-below"),
       Field(&O::models, "models", "Models of the widened search").AtLeast(0),
       Field(&O::views_per_model, "views_per_model", "Views per model of the widened search")
           .AtLeast(1),
