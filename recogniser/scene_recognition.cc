@@ -9,6 +9,8 @@
 #include <set>
 #include <unordered_map>
 
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
 #include <fmt/format.h>
 #include <nlohmann/json.hpp>
 #include <spdlog/spdlog.h>
@@ -74,6 +76,7 @@ struct Hypothesis {
   bool flipped = false;
   bool twin = false;  // a half-turn twin of another hypothesis, refined on its cluster
   bool rested = false;  // turned onto a resting face of its model (it did not rest)
+  bool sibling = false;  // another model of the class in another hypothesis's pose, refined
 };
 
 // Height of the model's surface centroid above the plane over the model's diameter (the
@@ -143,7 +146,7 @@ struct HypothesisPool {
   std::vector<RecognitionResult> cluster_results;  // per cluster
   // Second looks taken: per cluster (remainder, twins, split) and per joined pair (a
   // cluster and another cluster, or num_clusters + the accepted hypothesis it joined).
-  std::vector<uint8_t> remainder_tried, twins_tried, split_tried;
+  std::vector<uint8_t> remainder_tried, twins_tried, split_tried, siblings_tried;
   std::set<std::pair<int, int>> joined;
   // The verification of the hypotheses so far (they are only ever appended).
   VerificationCache verification;
@@ -569,7 +572,9 @@ bool AddTwinsOfUnexplained(const SceneContext& ctx, const std::vector<Hypothesis
     for (size_t h = 0; h < before; ++h) {
       const Hypothesis& hypothesis = pool->hypotheses[h];
       if (hypothesis.cluster != static_cast<int>(c)) continue;
-      if (!hypothesis.flipped && !hypothesis.twin) candidates.push_back(static_cast<int>(h));
+      if (!hypothesis.flipped && !hypothesis.twin && !hypothesis.sibling) {
+        candidates.push_back(static_cast<int>(h));
+      }
     }
     if (candidates.empty()) continue;
     std::stable_sort(candidates.begin(), candidates.end(), [&evidence](int a, int b) {
@@ -577,6 +582,148 @@ bool AddTwinsOfUnexplained(const SceneContext& ctx, const std::vector<Hypothesis
     });
     if (static_cast<int>(candidates.size()) > per_cluster) candidates.resize(per_cluster);
     added |= AddTwinHypotheses(ctx, ctx.clusters[c].cloud, candidates, pool);
+  }
+  return added;
+}
+
+// Size of points along the table: the height of the highest above the lowest (or above
+// the plane: `from_plane`) and the extents along the two principal axes of their
+// projection onto the plane, largest first.
+Eigen::Vector3d SizeAlongTable(const std::vector<Eigen::Vector3f>& points,
+                               const Eigen::Matrix3d& rotation, const TablePlane& plane,
+                               bool from_plane) {
+  const Eigen::Vector3d n = plane.normal.cast<double>();
+  const Eigen::Vector3d u = n.unitOrthogonal(), v = n.cross(u);
+  double low = std::numeric_limits<double>::max(), high = -low;
+  std::vector<Eigen::Vector2d> flat;
+  flat.reserve(points.size());
+  Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+  for (const Eigen::Vector3f& p : points) {
+    const Eigen::Vector3d q = rotation * p.cast<double>();
+    const double h = n.dot(q);
+    low = std::min(low, h);
+    high = std::max(high, h);
+    flat.emplace_back(u.dot(q), v.dot(q));
+    mean += flat.back();
+  }
+  if (flat.empty()) return Eigen::Vector3d::Zero();
+  mean /= static_cast<double>(flat.size());
+  Eigen::Matrix2d covariance = Eigen::Matrix2d::Zero();
+  for (const Eigen::Vector2d& f : flat) covariance += (f - mean) * (f - mean).transpose();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> solver(covariance);
+  const Eigen::Vector2d major = solver.eigenvectors().col(1), minor = solver.eigenvectors().col(0);
+  double a0 = std::numeric_limits<double>::max(), a1 = -a0, b0 = a0, b1 = -a0;
+  for (const Eigen::Vector2d& f : flat) {
+    a0 = std::min(a0, major.dot(f));
+    a1 = std::max(a1, major.dot(f));
+    b0 = std::min(b0, minor.dot(f));
+    b1 = std::max(b1, minor.dot(f));
+  }
+  const double height = from_plane ? high + plane.offset : high - low;
+  return Eigen::Vector3d(height, a1 - a0, b1 - b0);
+}
+
+// Siblings of the cluster's hypothesis `h` (AddSiblingHypotheses): the class's other
+// models nearest the cluster in size, in the pose of `h`, ICP-refined on the cluster's
+// points, scored against them as the recogniser scores a pose, and put down on the table.
+// Adds them to the pool; false when it added none.
+bool AddSiblingsOf(const SceneContext& ctx, const PointCloud& points, const Hypothesis& h,
+                   HypothesisPool* pool) {
+  const Database& db = ctx.database;
+  const Suggestion& s = h.recognition.suggestions[0];
+  const Eigen::Vector3d cluster_size =
+      SizeAlongTable(points.points, Eigen::Matrix3d::Identity(), ctx.plane, true);
+  std::vector<std::pair<double, int>> by_size;
+  for (int m = 0; m < static_cast<int>(db.models().size()); ++m) {
+    if (m == s.model || db.model(m).class_index != s.class_index) continue;
+    const PointCloud& surface = ctx.scene_recogniser.ModelSurface(m, ctx.options.model_leaf);
+    if (surface.empty()) continue;
+    const Eigen::Vector3d size =
+        SizeAlongTable(surface.points, s.cam_from_model.rotation, ctx.plane, false);
+    by_size.emplace_back((size - cluster_size).cwiseAbs().sum(), m);
+  }
+  if (by_size.empty()) return false;
+  std::sort(by_size.begin(), by_size.end());
+  if (static_cast<int>(by_size.size()) > ctx.options.sibling_hypotheses) {
+    by_size.resize(ctx.options.sibling_hypotheses);
+  }
+  const Stopwatch watch;
+  const std::optional<PoseQuery> query = ClusterPoseQuery(ctx, points);
+  if (!query) return false;
+  const Rigid3d cam_from_canonical(query->cam_from_canonical, Eigen::Vector3d::Zero());
+  const Rigid3d canonical_from_cam = cam_from_canonical.Inverse();
+  const PoseOptions& pose_options = ctx.options.recognition.pose;
+  const bool on_table = ctx.options.snap_to_plane && ctx.plane.found;
+  bool added = false;
+  for (const auto& [distance, m] : by_size) {
+    const PointCloud& surface = ctx.scene_recogniser.ModelSurface(m, ctx.options.model_leaf);
+    std::vector<Eigen::Vector3f> model_points, model_normals;
+    const size_t stride = std::max<size_t>(1, surface.size() / kTwinIcpPoints);
+    for (size_t i = 0; i < surface.size(); i += stride) {
+      model_points.push_back(surface.points[i]);
+      model_normals.push_back(surface.normals[i]);
+    }
+    const IcpResult icp = RefinePose(model_points, model_normals, *query,
+                                     canonical_from_cam * s.cam_from_model, pose_options);
+    Hypothesis sibling = h;
+    sibling.sibling = true;
+    sibling.flipped = sibling.twin = sibling.rested = false;
+    sibling.snap = 0.0;
+    Suggestion& front = sibling.recognition.suggestions[0];
+    const ModelRecord& model = db.model(m);
+    front.model = m;
+    front.model_name = model.name;
+    front.view = NearestModelView(db, m, icp.canonical_from_model);
+    front.viewpoint = db.view(front.view).viewpoint;
+    front.cam_from_model = cam_from_canonical * icp.canonical_from_model;
+    front.icp_iterations = icp.iterations;
+    front.icp_rms = icp.rms;
+    const PointCloud view_cloud = db.ViewCloud(front.view);
+    front.alignment = ScoreAlignment(view_cloud.points, view_cloud.normals,
+                                     db.view(front.view).cloud_spacing, *query,
+                                     icp.canonical_from_model, pose_options);
+    front.score = front.alignment.score;
+    if (on_table && !PutOnTable(ctx, &sibling)) continue;
+    spdlog::debug("cluster {}: sibling {} of {} (size distance {:.3f} m), score {:.3f}",
+                  h.cluster, model.name, s.model_name, distance, front.score);
+    pool->hypotheses.push_back(std::move(sibling));
+    added = true;
+  }
+  pool->recognise_ms += watch.WallMs();
+  return added;
+}
+
+// Every cluster gets, once, the siblings (SceneRecognitionOptions::sibling_hypotheses) of
+// its first recognition's best posed suggestion of the class it ranks first, when that
+// class has at least the class-level probability — in the pose the recogniser found,
+// before the plane prior moved it (a hypothesis of the wrong size does not rest on the
+// table; turned onto a resting face it no longer fits either). Clusters already explained
+// get them too: an unseen instance may pass the instance-level tests with a database
+// instance of another size (a bowl 13 cm wide posed as one of 12 cm) that a sibling fits
+// better. True when that added hypotheses.
+bool AddSiblingHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
+  if (ctx.options.sibling_hypotheses <= 0) return false;
+  bool added = false;
+  for (size_t c = 0; c < ctx.clusters.size(); ++c) {
+    if (pool->siblings_tried[c]) continue;
+    pool->siblings_tried[c] = 1;
+    const RecognitionResult& recognition = pool->cluster_results[c];
+    if (recognition.classes.empty() ||
+        recognition.classes.front().probability <
+            ctx.options.verification.min_class_probability) {
+      continue;
+    }
+    const int first_class = recognition.classes.front().class_index;
+    for (size_t k = 0; k < recognition.suggestions.size(); ++k) {
+      const Suggestion& s = recognition.suggestions[k];
+      if (!s.posed || s.class_index != first_class) continue;
+      Hypothesis source;
+      source.cluster = static_cast<int>(c);
+      source.recognition = recognition;
+      std::swap(source.recognition.suggestions[0], source.recognition.suggestions[k]);
+      added |= AddSiblingsOf(ctx, ctx.clusters[c].cloud, source, pool);
+      break;
+    }
   }
   return added;
 }
@@ -681,13 +828,15 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
     const HypothesisEvidence& e = evidence[h];
     const Eigen::Vector3f& c = ctx.clusters[hypotheses[h].cluster].centroid;
     spdlog::debug("hypothesis cluster={} centroid=({:.4f},{:.4f},{:.4f}) class={} model={} "
-                  "score={:.3f} class_p={:.3f} flipped={} twin={} rested={} fit={:.3f} "
+                  "score={:.3f} class_p={:.3f} flipped={} twin={} rested={} sibling={} "
+                  "fit={:.3f} "
                   "local={:.3f} "
                   "viol={:.3f} visible={} explained={} duplicates={} violations={} passes={} "
                   "accepted={} class_level={} why={}",
                   hypotheses[h].cluster, c.x(), c.y(), c.z(), s.class_name, s.model_name,
                   s.score, ClassProbability(hypotheses[h].recognition, s.class_index),
-                  hypotheses[h].flipped, hypotheses[h].twin, hypotheses[h].rested, e.model_fit,
+                  hypotheses[h].flipped, hypotheses[h].twin, hypotheses[h].rested,
+                  hypotheses[h].sibling, e.model_fit,
                   e.local_explained,
                   e.violation_fraction,
                   e.visible, e.explained.size(), e.duplicates, e.violations, e.passes,
@@ -857,6 +1006,8 @@ void SceneRecognitionOptions::Check() const {
              join_distance);
   SOPE_CHECK(twin_hypotheses >= 0, "scene recognition: twin hypotheses must be ≥ 0, got {}",
              twin_hypotheses);
+  SOPE_CHECK(sibling_hypotheses >= 0,
+             "scene recognition: sibling hypotheses must be ≥ 0, got {}", sibling_hypotheses);
   SOPE_CHECK(stability_weight >= 0, "scene recognition: stability weight must be ≥ 0, got {}",
              stability_weight);
   SOPE_CHECK(scene_leaf > 0 && model_leaf > 0,
@@ -950,6 +1101,7 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
   pool.cluster_results.resize(clusters.size());
   pool.remainder_tried.assign(clusters.size(), 0);
   pool.twins_tried.assign(clusters.size(), 0);
+  pool.siblings_tried.assign(clusters.size(), 0);
   pool.split_tried.assign(clusters.size(), 0);
   for (size_t c = 0; c < clusters.size(); ++c) {
     AddClusterHypotheses(ctx, static_cast<int>(c), clusters[c].cloud, &pool);
@@ -979,6 +1131,7 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     bool added = AddRemainderHypotheses(ctx, explained, left, has_accepted, &pool);
     const double t_remainder = look.WallMs();
     added |= AddTwinsOfUnexplained(ctx, evidence, unexplained, &pool);
+    added |= AddSiblingHypotheses(ctx, &pool);
     const double t_twins = look.WallMs();
     added |= AddSplitHypotheses(ctx, to_split, &pool);
     const double t_split = look.WallMs();

@@ -65,6 +65,18 @@ struct SceneRecognitionOptions {
   // on the cluster (0: none). A view-based search confuses an object with its other side
   // when the two look alike (a drill on its left or right side).
   int twin_hypotheses = 2;
+  // Each cluster whose recognition ranks a class first with at least
+  // verification.min_class_probability gets its best posed suggestion of that class tried
+  // with the class's other database models — the sibling_hypotheses of them whose size
+  // (height and extents along the table, in that pose) is nearest the cluster's — each
+  // ICP-refined on the cluster, after the first verification (0: none). An unseen instance
+  // is fitted badly, or only passably, by the database instance whose views it resembles
+  // most when that one is larger or smaller (a wide bowl posed as a narrow one); the
+  // procedural classes share one frame per class (axis up, base at the origin), so the
+  // pose carries over. Classes of one model (an instance database): nothing to try. Seeds
+  // 301, 401, 501, 601 of eval --table --procedural (16-instance database): class recall
+  // 110 → 118 of 189, clutter rejected 48 of 48 either way.
+  int sibling_hypotheses = 3;
   // A cluster no hypothesis explains is split along its concave seams
   // (recogniser/convex_segmentation.h) and its split_segments largest segments are
   // recognised alone (0: never): touching objects clustered together, whose mixed

@@ -15,10 +15,7 @@
 #include "core/error.h"
 
 namespace sope {
-namespace {
 
-// The view of `model_index` whose camera direction (from the model centre) is closest to
-// that of the pose `canonical_from_model` (the canonical frame shares the camera centre).
 int NearestModelView(const Database& db, int model_index, const Rigid3d& canonical_from_model) {
   const ModelRecord& model = db.model(model_index);
   const Eigen::Vector3d camera_in_model = canonical_from_model.Inverse().translation;
@@ -34,6 +31,8 @@ int NearestModelView(const Database& db, int model_index, const Rigid3d& canonic
   }
   return best;
 }
+
+namespace {
 
 // The views of one model that get hypotheses: ranked, up to `count` at least
 // `min_separation_cos` apart (neighbouring views would converge to the same pose).

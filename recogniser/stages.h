@@ -35,6 +35,11 @@
 
 namespace sope {
 
+// The view of `model_index` whose camera direction (from the model centre) is closest to
+// that of the pose `canonical_from_model` (the canonical frame shares the camera centre;
+// any frame centred on the camera will do).
+int NearestModelView(const Database& db, int model_index, const Rigid3d& canonical_from_model);
+
 // Preprocess + canonical frame + features of the query, exactly as the database views
 // were described (the database's stored options). Throws sope::Error on an unusable cloud
 // or features of other dimensions than the database's.
