@@ -147,6 +147,9 @@ struct HypothesisPool {
   // Second looks taken: per cluster (remainder, twins, split) and per joined pair (a
   // cluster and another cluster, or num_clusters + the accepted hypothesis it joined).
   std::vector<uint8_t> remainder_tried, twins_tried, split_tried, siblings_tried;
+  // Per cluster: its pose query (ClusterPoseQuery), built on first use.
+  std::vector<std::optional<PoseQuery>> pose_queries;
+  std::vector<uint8_t> pose_query_built;
   std::set<std::pair<int, int>> joined;
   // The verification of the hypotheses so far (they are only ever appended).
   VerificationCache verification;
@@ -331,14 +334,21 @@ void AddClusterHypotheses(const SceneContext& ctx, int cluster, const PointCloud
 }
 
 // The cluster's points as the recogniser's pose stages see them (pre-processed with the
-// database's options, canonical frame, projective grid); empty when too few points survive.
-std::optional<PoseQuery> ClusterPoseQuery(const SceneContext& ctx, const PointCloud& points) {
-  try {
-    return PoseQueryOf(ctx.database, Preprocess(points, ctx.database.options().preprocess),
-                       ctx.options.recognition.pose);
-  } catch (const Error&) {
-    return std::nullopt;
+// database's options, canonical frame, projective grid); null when too few points
+// survive. Built once per cluster (twins and siblings share it).
+const PoseQuery* ClusterPoseQuery(const SceneContext& ctx, int cluster, HypothesisPool* pool) {
+  std::optional<PoseQuery>& query = pool->pose_queries[cluster];
+  if (!pool->pose_query_built[cluster]) {
+    pool->pose_query_built[cluster] = 1;
+    try {
+      const PreprocessedCloud preprocessed =
+          Preprocess(ctx.clusters[cluster].cloud, ctx.database.options().preprocess);
+      query = PoseQueryOf(ctx.database, preprocessed, ctx.options.recognition.pose);
+    } catch (const Error&) {
+      query.reset();
+    }
   }
+  return query ? &*query : nullptr;
 }
 
 constexpr size_t kTwinIcpPoints = 1500;
@@ -348,12 +358,12 @@ constexpr size_t kTwinIcpPoints = 1500;
 // view-based search confuses most (a drill on its side seen from its other side, a box
 // end for end) — ICP-refined on the cluster's points and put down on the table. Adds
 // them to the pool; false when it added none.
-bool AddTwinHypotheses(const SceneContext& ctx, const PointCloud& points,
+bool AddTwinHypotheses(const SceneContext& ctx, int cluster,
                        const std::vector<int>& sources, HypothesisPool* pool) {
   if (sources.empty()) return false;
   const Stopwatch watch;
-  const std::optional<PoseQuery> query = ClusterPoseQuery(ctx, points);
-  if (!query) return false;
+  const PoseQuery* query = ClusterPoseQuery(ctx, cluster, pool);
+  if (query == nullptr) return false;
   const Rigid3d cam_from_canonical(query->cam_from_canonical, Eigen::Vector3d::Zero());
   const Rigid3d canonical_from_cam = cam_from_canonical.Inverse();
   const PoseOptions& pose_options = ctx.options.recognition.pose;
@@ -581,7 +591,7 @@ bool AddTwinsOfUnexplained(const SceneContext& ctx, const std::vector<Hypothesis
       return evidence[a].model_fit > evidence[b].model_fit;
     });
     if (static_cast<int>(candidates.size()) > per_cluster) candidates.resize(per_cluster);
-    added |= AddTwinHypotheses(ctx, ctx.clusters[c].cloud, candidates, pool);
+    added |= AddTwinHypotheses(ctx, static_cast<int>(c), candidates, pool);
   }
   return added;
 }
@@ -627,12 +637,12 @@ Eigen::Vector3d SizeAlongTable(const std::vector<Eigen::Vector3f>& points,
 // models nearest the cluster in size, in the pose of `h`, ICP-refined on the cluster's
 // points, scored against them as the recogniser scores a pose, and put down on the table.
 // Adds them to the pool; false when it added none.
-bool AddSiblingsOf(const SceneContext& ctx, const PointCloud& points, const Hypothesis& h,
-                   HypothesisPool* pool) {
+bool AddSiblingsOf(const SceneContext& ctx, const Hypothesis& h, HypothesisPool* pool) {
   const Database& db = ctx.database;
   const Suggestion& s = h.recognition.suggestions[0];
   const Eigen::Vector3d cluster_size =
-      SizeAlongTable(points.points, Eigen::Matrix3d::Identity(), ctx.plane, true);
+      SizeAlongTable(ctx.clusters[h.cluster].cloud.points, Eigen::Matrix3d::Identity(),
+                     ctx.plane, true);
   std::vector<std::pair<double, int>> by_size;
   for (int m = 0; m < static_cast<int>(db.models().size()); ++m) {
     if (m == s.model || db.model(m).class_index != s.class_index) continue;
@@ -648,8 +658,8 @@ bool AddSiblingsOf(const SceneContext& ctx, const PointCloud& points, const Hypo
     by_size.resize(ctx.options.sibling_hypotheses);
   }
   const Stopwatch watch;
-  const std::optional<PoseQuery> query = ClusterPoseQuery(ctx, points);
-  if (!query) return false;
+  const PoseQuery* query = ClusterPoseQuery(ctx, h.cluster, pool);
+  if (query == nullptr) return false;
   const Rigid3d cam_from_canonical(query->cam_from_canonical, Eigen::Vector3d::Zero());
   const Rigid3d canonical_from_cam = cam_from_canonical.Inverse();
   const PoseOptions& pose_options = ctx.options.recognition.pose;
@@ -721,7 +731,7 @@ bool AddSiblingHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
       source.cluster = static_cast<int>(c);
       source.recognition = recognition;
       std::swap(source.recognition.suggestions[0], source.recognition.suggestions[k]);
-      added |= AddSiblingsOf(ctx, ctx.clusters[c].cloud, source, pool);
+      added |= AddSiblingsOf(ctx, source, pool);
       break;
     }
   }
@@ -1102,6 +1112,8 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
   pool.remainder_tried.assign(clusters.size(), 0);
   pool.twins_tried.assign(clusters.size(), 0);
   pool.siblings_tried.assign(clusters.size(), 0);
+  pool.pose_queries.resize(clusters.size());
+  pool.pose_query_built.assign(clusters.size(), 0);
   pool.split_tried.assign(clusters.size(), 0);
   for (size_t c = 0; c < clusters.size(); ++c) {
     AddClusterHypotheses(ctx, static_cast<int>(c), clusters[c].cloud, &pool);

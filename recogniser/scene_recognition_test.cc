@@ -301,7 +301,8 @@ TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSi
       {MakeObject(ObjectClass::kBowl, 1192), frame.Pose(0.10, 0.06, 0.3), "bowl_1"},
       {MakeObject(ObjectClass::kBowl, 1019), frame.Pose(-0.05, -0.05, 1.1), "bowl_12"}};
   for (const Truth& t : bowls) scene.objects.push_back({t.mesh, t.pose, 0.8, {}});
-  scene.objects.push_back({MakeObject(ObjectClass::kMug, 0), frame.Pose(-0.17, 0.07, 0.8), 0.8, {}});
+  scene.objects.push_back(
+      {MakeObject(ObjectClass::kMug, 0), frame.Pose(-0.17, 0.07, 0.8), 0.8, {}});
   const PointCloud cloud = ScanScene(scene);
   const SceneRecogniser recogniser(*db);
   // The recogniser alone poses the first-ranked model only (no other models screened,
