@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <deque>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -77,6 +78,10 @@ struct Hypothesis {
   bool twin = false;  // a half-turn twin of another hypothesis, refined on its cluster
   bool rested = false;  // turned onto a resting face of its model (it did not rest)
   bool sibling = false;  // another model of the class in another hypothesis's pose, refined
+  // A model scaled per axis (its own surface sample, `scale` in the model frame about the
+  // model's centre) to the cluster's size; null: the model's surface as it is.
+  const PointCloud* surface = nullptr;
+  Eigen::Vector3d scale = Eigen::Vector3d::Ones();
 };
 
 // Height of the model's surface centroid above the plane over the model's diameter (the
@@ -147,6 +152,8 @@ struct HypothesisPool {
   // Second looks taken: per cluster (remainder, twins, split) and per joined pair (a
   // cluster and another cluster, or num_clusters + the accepted hypothesis it joined).
   std::vector<uint8_t> remainder_tried, twins_tried, split_tried, siblings_tried;
+  // The surface samples of scaled hypotheses (Hypothesis::surface points into it).
+  std::deque<PointCloud> scaled_surfaces;
   // Per cluster: its pose query (ClusterPoseQuery), built on first use.
   std::vector<std::optional<PoseQuery>> pose_queries;
   std::vector<uint8_t> pose_query_built;
@@ -167,6 +174,13 @@ float LowestHeight(const PointCloud& surface, const Rigid3d& cam_from_model,
     lowest = std::min(lowest, plane.Height(rotation * p + translation));
   }
   return lowest;
+}
+
+// The surface sample a hypothesis is verified with: its scaled one, or its model's.
+const PointCloud& SurfaceOf(const SceneContext& ctx, const Hypothesis& h) {
+  if (h.surface != nullptr) return *h.surface;
+  return ctx.scene_recogniser.ModelSurface(h.recognition.suggestions[0].model,
+                                           ctx.options.model_leaf);
 }
 
 // The recogniser's result for `points`, evenly subsampled to at most max_recognition_points;
@@ -196,8 +210,7 @@ RecognitionResult RecogniseCluster(const SceneContext& ctx, const PointCloud& po
 // the table or sinks into it by more than max_float (not a resting object).
 bool SnapToTable(const SceneContext& ctx, Hypothesis* h) {
   Suggestion& front = h->recognition.suggestions[0];
-  const PointCloud& surface =
-      ctx.scene_recogniser.ModelSurface(front.model, ctx.options.model_leaf);
+  const PointCloud& surface = SurfaceOf(ctx, *h);
   const float lowest = LowestHeight(surface, front.cam_from_model, ctx.plane);
   if (!std::isfinite(lowest) || std::abs(lowest) > ctx.options.max_float) {
     spdlog::debug("cluster {}: {} ({}, score {:.3f}) dropped: its lowest point {:.3f} m off "
@@ -223,8 +236,7 @@ bool TurnOntoTable(const SceneContext& ctx, const Eigen::Matrix3d& turn, double 
   const Eigen::Vector3d centre = f.cam_from_model * ctx.database.model(f.model).center;
   f.cam_from_model.rotation = turn * f.cam_from_model.rotation;
   f.cam_from_model.translation = turn * (f.cam_from_model.translation - centre) + centre;
-  const PointCloud& surface = ctx.scene_recogniser.ModelSurface(f.model, ctx.options.model_leaf);
-  const float lowest = LowestHeight(surface, f.cam_from_model, ctx.plane);
+  const float lowest = LowestHeight(SurfaceOf(ctx, *h), f.cam_from_model, ctx.plane);
   if (!std::isfinite(lowest) || std::abs(lowest) > max_lift) return false;
   f.cam_from_model.translation -= static_cast<double>(lowest) * ctx.plane.normal.cast<double>();
   h->snap = -lowest;
@@ -703,6 +715,127 @@ bool AddSiblingsOf(const SceneContext& ctx, const Hypothesis& h, HypothesisPool*
   return added;
 }
 
+// Robust extent of `values` (the 2nd to the 98th percentile): its low and high ends.
+std::pair<double, double> RobustRange(std::vector<double> values) {
+  const size_t n = values.size();
+  const size_t lo = n / 50, hi = n - 1 - n / 50;
+  std::nth_element(values.begin(), values.begin() + lo, values.end());
+  const double low = values[lo];
+  std::nth_element(values.begin(), values.begin() + hi, values.end());
+  return {low, values[hi]};
+}
+
+// The per-axis scale (model frame) of the model `surface` that matches the cluster's
+// points seen at `cam_from_model` — the robust extent of the points along each model axis;
+// along the axis nearest the table normal, when it is within 26° of it, their height above
+// the table —, each factor within [1/max_scale, max_scale]; and the shift (model frame, 0
+// along that axis) that centres the model on them. False when the extents are degenerate.
+bool ScaleToCluster(const SceneContext& ctx, const PointCloud& surface, const PointCloud& cluster,
+                    const Rigid3d& cam_from_model, const Eigen::Vector3d& centre,
+                    Eigen::Vector3d* scale, Eigen::Vector3d* shift) {
+  const double max_scale = ctx.options.max_scale;
+  const Rigid3d model_from_cam = cam_from_model.Inverse();
+  const Eigen::Vector3d up = cam_from_model.rotation.transpose() * ctx.plane.normal.cast<double>();
+  int vertical = -1;
+  up.cwiseAbs().maxCoeff(&vertical);
+  const bool upright = std::abs(up[vertical]) > 0.9 && ctx.plane.found;
+  for (int a = 0; a < 3; ++a) {
+    std::vector<double> seen(cluster.size()), model(surface.size());
+    for (size_t i = 0; i < cluster.size(); ++i) {
+      seen[i] = (model_from_cam * cluster.points[i].cast<double>())[a];
+    }
+    for (size_t i = 0; i < surface.size(); ++i) model[i] = surface.points[i][a];
+    const auto [seen_low, seen_high] = RobustRange(std::move(seen));
+    const auto [model_low, model_high] = RobustRange(std::move(model));
+    double extent = seen_high - seen_low;
+    (*shift)[a] = 0.5 * (seen_low + seen_high) - centre[a];
+    if (a == vertical && upright) {
+      std::vector<double> heights(cluster.size());
+      for (size_t i = 0; i < cluster.size(); ++i) heights[i] = ctx.plane.Height(cluster.points[i]);
+      extent = RobustRange(std::move(heights)).second;  // from the table up
+      (*shift)[a] = 0.0;  // the height: put down on the table
+    }
+    if (!(model_high - model_low > 1e-3) || !(extent > 0)) return false;
+    (*scale)[a] = std::clamp(extent / (model_high - model_low), 1.0 / max_scale, max_scale);
+  }
+  return true;
+}
+
+// `surface` scaled by `scale` (per axis, about `centre`), normals transformed alike.
+void ScaleSurface(const PointCloud& surface, const Eigen::Vector3d& scale,
+                  const Eigen::Vector3d& centre, PointCloud* scaled) {
+  scaled->points.clear();
+  scaled->normals.clear();
+  scaled->points.reserve(surface.size());
+  scaled->normals.reserve(surface.size());
+  const Eigen::Vector3f scale_f = scale.cast<float>(), centre_f = centre.cast<float>();
+  const Eigen::Vector3f inverse_f = scale_f.cwiseInverse();
+  for (size_t i = 0; i < surface.size(); ++i) {
+    scaled->points.push_back(centre_f + scale_f.cwiseProduct(surface.points[i] - centre_f));
+    scaled->normals.push_back(inverse_f.cwiseProduct(surface.normals[i]).normalized());
+  }
+}
+
+constexpr int kScaleRounds = 3;
+
+// The hypothesis `h` with its model scaled per axis (model frame, about the model's
+// centre) to the cluster (ScaleToCluster), ICP-refined on the cluster; scale and pose
+// estimated again from the refined pose, kScaleRounds times; then put down on the table.
+// Added to the pool when some axis changed by 5% or more; false when nothing was added,
+// and for a class of one database model.
+bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, HypothesisPool* pool) {
+  if (!(ctx.options.max_scale > 1.0)) return false;
+  const Suggestion& s = h.recognition.suggestions[0];
+  // A class of one model is an instance: its size is known.
+  int class_models = 0;
+  for (const ModelRecord& model : ctx.database.models()) {
+    class_models += model.class_index == s.class_index;
+  }
+  if (class_models < 2) return false;
+  const PointCloud& surface = ctx.scene_recogniser.ModelSurface(s.model, ctx.options.model_leaf);
+  const PointCloud& cluster = ctx.clusters[h.cluster].cloud;
+  if (surface.empty() || cluster.size() < 10) return false;
+  const PoseQuery* query = ClusterPoseQuery(ctx, h.cluster, pool);
+  if (query == nullptr) return false;
+  const Rigid3d cam_from_canonical(query->cam_from_canonical, Eigen::Vector3d::Zero());
+  const Eigen::Vector3d centre = ctx.database.model(s.model).center;
+  Rigid3d pose = s.cam_from_model;
+  Eigen::Vector3d scale = Eigen::Vector3d::Ones();
+  PointCloud scaled;
+  IcpResult icp;
+  for (int round = 0; round < kScaleRounds; ++round) {
+    Eigen::Vector3d shift = Eigen::Vector3d::Zero();
+    if (!ScaleToCluster(ctx, surface, cluster, pose, centre, &scale, &shift)) return false;
+    if (round == 0 && (scale.array() - 1.0).abs().maxCoeff() < 0.05) return false;
+    ScaleSurface(surface, scale, centre, &scaled);
+    std::vector<Eigen::Vector3f> points, normals;
+    const size_t stride = std::max<size_t>(1, scaled.size() / kTwinIcpPoints);
+    for (size_t i = 0; i < scaled.size(); i += stride) {
+      points.push_back(scaled.points[i]);
+      normals.push_back(scaled.normals[i]);
+    }
+    pose.translation += pose.rotation * shift;
+    icp = RefinePose(points, normals, *query, cam_from_canonical.Inverse() * pose,
+                     ctx.options.recognition.pose);
+    pose = cam_from_canonical * icp.canonical_from_model;
+  }
+  pool->scaled_surfaces.push_back(std::move(scaled));
+  Hypothesis out = h;
+  out.surface = &pool->scaled_surfaces.back();
+  out.scale = scale;
+  out.flipped = out.twin = out.rested = out.sibling = false;
+  out.snap = 0.0;
+  Suggestion& front = out.recognition.suggestions[0];
+  front.cam_from_model = pose;
+  front.icp_iterations = icp.iterations;
+  front.icp_rms = icp.rms;
+  if (ctx.options.snap_to_plane && ctx.plane.found && !SnapToTable(ctx, &out)) return false;
+  spdlog::debug("cluster {}: {} scaled by ({:.2f}, {:.2f}, {:.2f})", h.cluster, s.model_name,
+                scale.x(), scale.y(), scale.z());
+  pool->hypotheses.push_back(std::move(out));
+  return true;
+}
+
 // Every cluster gets, once, the siblings (SceneRecognitionOptions::sibling_hypotheses) of
 // its first recognition's best posed suggestion of the class it ranks first, when that
 // class has at least the class-level probability — in the pose the recogniser found,
@@ -732,6 +865,7 @@ bool AddSiblingHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
       source.recognition = recognition;
       std::swap(source.recognition.suggestions[0], source.recognition.suggestions[k]);
       added |= AddSiblingsOf(ctx, source, pool);
+      added |= AddScaledHypothesis(ctx, source, pool);
       break;
     }
   }
@@ -747,7 +881,7 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
   std::vector<SceneHypothesis> scene_hypotheses;
   for (const Hypothesis& h : pool->hypotheses) {
     const Suggestion& s = h.recognition.suggestions[0];
-    const PointCloud& surface = ctx.scene_recogniser.ModelSurface(s.model, options.model_leaf);
+    const PointCloud& surface = SurfaceOf(ctx, h);
     const double prior =
         plane.found ? options.stability_weight *
                           std::max(0.0, CentreOfMassHeight(surface, s.cam_from_model, plane,
@@ -758,7 +892,8 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
         !classes.empty() && classes.front().class_index == s.class_index
             ? classes.front().probability
             : 0.0;
-    scene_hypotheses.push_back({&surface, s.cam_from_model, prior, class_probability});
+    scene_hypotheses.push_back(
+        {&surface, s.cam_from_model, prior, class_probability, h.surface != nullptr});
   }
   // The segmentation cut everything below min_height (+ the plane noise) away: model
   // points there have nothing to fit.
@@ -878,6 +1013,7 @@ std::vector<RecognisedObject> AssembleObjects(const SceneContext& ctx, Hypothesi
     object.recognition.recognised = true;
     object.cluster = hypotheses[h].cluster;
     object.snap_m = hypotheses[h].snap;
+    object.scale = hypotheses[h].scale;
     object.visible_fraction = ev[h].visible_fraction;
     object.class_level = ev[h].class_level;
     object.evidence = std::move(ev[h]);
@@ -1016,6 +1152,10 @@ void SceneRecognitionOptions::Check() const {
              join_distance);
   SOPE_CHECK(twin_hypotheses >= 0, "scene recognition: twin hypotheses must be ≥ 0, got {}",
              twin_hypotheses);
+  SOPE_CHECK(std::isfinite(max_scale) && max_scale >= 0,
+             "scene recognition: max scale must be finite and ≥ 0 (≤ 1: no scaled hypotheses), "
+             "got {}",
+             max_scale);
   SOPE_CHECK(sibling_hypotheses >= 0,
              "scene recognition: sibling hypotheses must be ≥ 0, got {}", sibling_hypotheses);
   SOPE_CHECK(stability_weight >= 0, "scene recognition: stability weight must be ≥ 0, got {}",
@@ -1191,6 +1331,9 @@ std::string SceneRecognitionResultToJson(const SceneRecognitionResult& result) {
     o["match_level"] = object.class_level ? "class" : "instance";
     o["cluster"] = object.cluster;
     o["snap_m"] = object.snap_m;
+    if (object.scale != Eigen::Vector3d::Ones()) {
+      o["scale"] = {object.scale.x(), object.scale.y(), object.scale.z()};
+    }
     o["model_fit_scene"] = object.evidence.model_fit;
     o["local_explained"] = object.evidence.local_explained;
     objects.push_back(std::move(o));

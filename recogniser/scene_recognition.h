@@ -77,6 +77,14 @@ struct SceneRecognitionOptions {
   // 301, 401, 501, 601 of eval --table --procedural (16-instance database): class recall
   // 110 → 118 of 189, clutter rejected 48 of 48 either way.
   int sibling_hypotheses = 3;
+  // The same suggestion also with its model scaled per axis to the cluster's size (the
+  // extent of its points along each model axis in that pose; the height from the table),
+  // each factor within [1/max_scale, max_scale], ICP-refined on the cluster (≤ 1: none).
+  // Unseen instances larger or smaller than every database instance of their class (a box
+  // 19 cm deep against database boxes of 5–9 cm). Reported with its `scale`. Only for
+  // classes of two or more database models (a class of one model is an instance, whose
+  // size is known: the YCB tables, where scaled models only took wrong poses).
+  double max_scale = 1.6;
   // A cluster no hypothesis explains is split along its concave seams
   // (recogniser/convex_segmentation.h) and its split_segments largest segments are
   // recognised alone (0: never): touching objects clustered together, whose mixed
@@ -113,6 +121,9 @@ struct RecognisedObject {
   std::vector<int> indices;  // input cloud points it explains (its segment), increasing
   double visible_fraction = 0.0;  // of its camera-facing surface, fitting scene points
   double snap_m = 0.0;     // the shift along the table normal the plane prior applied
+  // Per-axis scale of the model (model frame, about its centre) that fits the object:
+  // ones unless a scaled hypothesis (SceneRecognitionOptions::max_scale) was accepted.
+  Eigen::Vector3d scale = Eigen::Vector3d::Ones();
   HypothesisEvidence evidence;
   bool verified = true;    // accepted by the scene verification
   // Accepted at class level only (HypothesisEvidence::class_level): an instance of the

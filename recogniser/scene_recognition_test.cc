@@ -12,6 +12,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <functional>
 #include <limits>
 #include <memory>
 
@@ -313,6 +314,7 @@ TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSi
   options.recognition.refinement.candidates = 1;
   options.recognition.assembly.class_screen_classes = 0;
   options.recognition.widening.below_score = 0.0;
+  options.max_scale = 0.0;  // siblings alone (a scaled bowl_5 fits bowl 1192 too)
   for (const int siblings : {0, options.sibling_hypotheses}) {
     options.sibling_hypotheses = siblings;
     const SceneRecognitionResult result = recogniser.Recognise(cloud, options);
@@ -336,6 +338,92 @@ TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSi
       EXPECT_EQ(found->best().model_name, t.nearest);
       EXPECT_LT(error.center_error_m, 0.005);
     }
+  }
+}
+
+// Scaled hypotheses (SceneRecognitionOptions::max_scale): the database holds two boxes
+// (procedural 3 and 10) and a mug; on the table stands a box of other proportions — box 3
+// 1.4× as deep and 0.8× as high — and the mug. The box must be found as a box whose scaled dimensions
+// are the new box's (within 10%), its centre within 5 mm; the mug as the mug. (Without
+// scaling the database box explains a part of the new one only: printed for comparison.)
+TEST(SceneRecognitionScaled, ABoxOfOtherProportionsIsFoundWithItsScale) {
+  testing::ScratchDir scratch;
+  const std::string models = scratch.File("models");
+  fs::create_directories(models + "/box");
+  fs::create_directories(models + "/mug");
+  const TriangleMesh box = MakeObject(ObjectClass::kBox, 3);
+  const TriangleMesh other_box = MakeObject(ObjectClass::kBox, 10);
+  WriteMesh(models + "/box/box_3.obj", box);
+  WriteMesh(models + "/box/box_10.obj", other_box);
+  WriteMesh(models + "/mug/mug_0.obj", MakeObject(ObjectClass::kMug, 0));
+  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
+  db_options.views_per_model = 80;
+  WriteDatabase(scratch.File("box.sopedb"), BuildDatabase(models, db_options));
+  const std::unique_ptr<Database> db = Database::Open(scratch.File("box.sopedb"));
+
+  const Eigen::Vector3f true_scale(1.0f, 1.4f, 0.8f);
+  TriangleMesh unseen = box;
+  for (Eigen::Vector3f& v : unseen.vertices) v = v.cwiseProduct(true_scale);
+  const TableFrame frame;
+  Scene scene;
+  scene.objects.push_back(TableTop(frame));
+  const Rigid3d box_pose = frame.Pose(0.07, 0.02, 0.5);
+  scene.objects.push_back({unseen, box_pose, 0.8, {}});
+  scene.objects.push_back(
+      {MakeObject(ObjectClass::kMug, 0), frame.Pose(-0.12, -0.03, 0.8), 0.8, {}});
+  const PointCloud cloud = ScanScene(scene);
+  const SceneRecogniser recogniser(*db);
+  SceneRecognitionOptions options;
+  for (const double max_scale : {0.0, options.max_scale}) {
+    options.max_scale = max_scale;
+    const SceneRecognitionResult result = recogniser.Recognise(cloud, options);
+    std::printf("max scale %.1f:\n%s\n", max_scale, SceneBriefReport(result).c_str());
+    if (max_scale == 0.0) continue;  // shown for comparison only
+    const Eigen::Vector3d centre = box_pose * MakePoseTruthModel(unseen).center;
+    const RecognisedObject* found = nullptr;
+    bool mug = false;
+    for (const RecognisedObject& o : result.objects) {
+      mug |= o.best().class_name == "mug";
+      if (o.best().class_name == "box") found = &o;
+    }
+    EXPECT_TRUE(mug);
+    ASSERT_NE(found, nullptr) << "the box was not found";
+    std::printf("box: scale (%.2f, %.2f, %.2f)\n", found->scale.x(), found->scale.y(),
+                found->scale.z());
+    // A box has several poses that put a scaled box where the new one is (lying on
+    // another face, the scale permuted alike): its dimensions, largest first, must be the
+    // new box's within 10%.
+    const TriangleMesh& found_mesh = found->best().model_name == "box_3" ? box : other_box;
+    Eigen::Vector3f low = found_mesh.vertices.front(), high = low;
+    for (const Eigen::Vector3f& v : found_mesh.vertices) {
+      low = low.cwiseMin(v);
+      high = high.cwiseMax(v);
+    }
+    Eigen::Vector3f found_size = found->scale.cast<float>().cwiseProduct(high - low);
+    Eigen::Vector3f true_size = Eigen::Vector3f::Zero();
+    for (int a = 0; a < 3; ++a) {
+      float lo = unseen.vertices.front()[a], hi = lo;
+      for (const Eigen::Vector3f& v : unseen.vertices) {
+        lo = std::min(lo, v[a]);
+        hi = std::max(hi, v[a]);
+      }
+      true_size[a] = hi - lo;
+    }
+    std::sort(found_size.data(), found_size.data() + 3, std::greater<float>());
+    std::sort(true_size.data(), true_size.data() + 3, std::greater<float>());
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_NEAR(found_size[a] / true_size[a], 1.0, 0.1) << "dimension " << a;
+    }
+    // The database box at the reported pose has its centre where the scaled box's is (the
+    // scale is about the model's centre).
+    const Eigen::Vector3d found_centre =
+        found->best().cam_from_model * MakePoseTruthModel(found_mesh).center;
+    std::printf("box: centre %.2f mm off\n", 1e3 * (found_centre - centre).norm());
+    EXPECT_LT((found_centre - centre).norm(), 0.005);
+    const nlohmann::json j = nlohmann::json::parse(SceneRecognitionResultToJson(result));
+    bool has_scale = false;
+    for (const auto& o : j["objects"]) has_scale |= o["class"] == "box" && o.contains("scale");
+    EXPECT_TRUE(has_scale);
   }
 }
 

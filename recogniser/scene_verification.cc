@@ -151,6 +151,7 @@ struct LevelExplanations {
   Explanation instance;
   Explanation class_level;
   bool class_allowed = false;  // class_level was computed (it failed at instance level)
+  double class_min_fit = 0.0;  // the class-level fit test's threshold for this hypothesis
   double class_fit = 0.0;
 };
 
@@ -204,7 +205,7 @@ void Judge(const LevelExplanations& levels, const SceneVerificationOptions& opti
   if (!instance && levels.class_allowed) {
     double class_local = 0.0;
     if (PassesLevel(levels.class_level, levels.class_fit, e->violation_fraction,
-                    options.class_min_model_fit, options.class_min_local_explained,
+                    levels.class_min_fit, options.class_min_local_explained,
                     options.class_max_violation_fraction, taken, &class_local)) {
       UseExplanation(levels.class_level, levels.class_fit, class_local, true, e);
     }
@@ -241,6 +242,9 @@ HypothesisEvidence EvaluateHypothesis(const PointCloud& scene, const SceneHypoth
   if (!e.passes && hypothesis.class_probability >= options.min_class_probability &&
       e.violation_fraction <= options.class_max_violation_fraction) {
     levels->class_allowed = true;
+    levels->class_min_fit =
+        hypothesis.scaled ? std::max(options.class_min_model_fit, options.scaled_min_model_fit)
+                          : options.class_min_model_fit;
     levels->class_level = ExplainScene(scene, visible, rotation, translation, options,
                                        options.class_inlier_distance);
     levels->class_fit =
@@ -310,7 +314,7 @@ void SceneVerificationOptions::Check() const {
   for (const double fraction :
        {min_model_fit, min_local_explained, max_violation_fraction, min_gain_fraction,
         min_class_probability, class_min_model_fit, class_min_local_explained,
-        class_max_violation_fraction}) {
+        class_max_violation_fraction, scaled_min_model_fit}) {
     SOPE_CHECK(fraction >= 0.0 && fraction <= 1.0,
                "scene verification: fractions must lie in [0, 1], got {}", fraction);
   }

@@ -59,6 +59,11 @@ struct SceneVerificationOptions {
   double class_min_model_fit = 0.4;
   double class_min_local_explained = 0.45;
   double class_max_violation_fraction = 0.3;
+  // A hypothesis whose model was scaled to the scan (SceneHypothesis::scaled) has had the
+  // size difference taken out: at class level it must fit at least this well (procedural
+  // tables, seeds 301 and 601: right scaled poses fit 0.61–0.72 at class level, a scaled
+  // can on a stone 0.43).
+  double scaled_min_model_fit = 0.5;
   // Gain weights and the minimum gain as a fraction of the hypothesis's explained points.
   double duplicate_weight = 1.0;
   double violation_weight = 1.0;
@@ -85,6 +90,9 @@ struct SceneHypothesis {
   // The recogniser's probability of the hypothesis's class when that class ranks first,
   // else 0: the class evidence class-level acceptance needs.
   double class_probability = 0.0;
+  // The model cloud is a database model scaled to the scan (class level: see
+  // SceneVerificationOptions::scaled_min_model_fit).
+  bool scaled = false;
 };
 
 struct HypothesisEvidence {
