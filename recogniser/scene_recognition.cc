@@ -365,6 +365,30 @@ const PoseQuery* ClusterPoseQuery(const SceneContext& ctx, int cluster, Hypothes
 
 constexpr size_t kTwinIcpPoints = 1500;
 
+// `surface` (model frame) ICP-refined on the cluster's pose `query` from
+// `canonical_from_model` (the query's canonical frame): an even subsample of
+// kTwinIcpPoints of its points fixes the pose (the scene verification then measures the
+// fit on all of them). Sets `h`'s front suggestion's pose (camera frame) and ICP figures.
+IcpResult RefineOnCluster(const SceneContext& ctx, const PoseQuery& query,
+                        const PointCloud& surface, const Rigid3d& canonical_from_model,
+                        Hypothesis* h) {
+  std::vector<Eigen::Vector3f> points, normals;
+  const size_t stride = std::max<size_t>(1, surface.size() / kTwinIcpPoints);
+  for (size_t i = 0; i < surface.size(); i += stride) {
+    points.push_back(surface.points[i]);
+    normals.push_back(surface.normals[i]);
+  }
+  const IcpResult icp =
+      RefinePose(points, normals, query, canonical_from_model, ctx.options.recognition.pose);
+  const Rigid3d cam_from_canonical(query.cam_from_canonical, Eigen::Vector3d::Zero());
+  Suggestion& front = h->recognition.suggestions[0];
+  front.cam_from_model = cam_from_canonical * icp.canonical_from_model;
+  front.icp_iterations = icp.iterations;
+  front.icp_rms = icp.rms;
+  h->snap = 0.0;
+  return icp;
+}
+
 // Twins of a cluster nothing explained: each of its first hypotheses turned half a turn
 // about each principal axis of its model (through the model's centre) — the poses a
 // view-based search confuses most (a drill on its side seen from its other side, a box
@@ -376,9 +400,8 @@ bool AddTwinHypotheses(const SceneContext& ctx, int cluster,
   const Stopwatch watch;
   const PoseQuery* query = ClusterPoseQuery(ctx, cluster, pool);
   if (query == nullptr) return false;
-  const Rigid3d cam_from_canonical(query->cam_from_canonical, Eigen::Vector3d::Zero());
-  const Rigid3d canonical_from_cam = cam_from_canonical.Inverse();
-  const PoseOptions& pose_options = ctx.options.recognition.pose;
+  const Rigid3d canonical_from_cam =
+      Rigid3d(query->cam_from_canonical, Eigen::Vector3d::Zero()).Inverse();
   const bool on_table = ctx.options.snap_to_plane && ctx.plane.found;
   bool added = false;
   for (const int source : sources) {
@@ -390,28 +413,14 @@ bool AddTwinHypotheses(const SceneContext& ctx, int cluster,
     Eigen::Vector3d surface_centroid, variances;
     Eigen::Matrix3d axes;  // the model's principal axes, largest spread first
     internal::PrincipalAxes(surface.points, &surface_centroid, &axes, &variances);
-    // ICP on an even subsample of the surface (a few thousand points fix a pose; the scene
-    // verification then measures the fit on all of them).
-    std::vector<Eigen::Vector3f> points, normals;
-    const size_t stride = std::max<size_t>(1, surface.size() / kTwinIcpPoints);
-    for (size_t i = 0; i < surface.size(); i += stride) {
-      points.push_back(surface.points[i]);
-      normals.push_back(surface.normals[i]);
-    }
     for (int k = 0; k < 3; ++k) {
       const Eigen::Matrix3d turn = Eigen::AngleAxisd(M_PI, axes.col(k)).toRotationMatrix();
       const Rigid3d model_turn(turn, centre - turn * centre);
-      const IcpResult icp = RefinePose(points, normals, *query,
-                                       canonical_from_cam * s.cam_from_model * model_turn,
-                                       pose_options);
       Hypothesis twin = h;
       twin.twin = true;
       twin.flipped = false;
-      twin.snap = 0.0;
-      Suggestion& front = twin.recognition.suggestions[0];
-      front.cam_from_model = cam_from_canonical * icp.canonical_from_model;
-      front.icp_iterations = icp.iterations;
-      front.icp_rms = icp.rms;
+      RefineOnCluster(ctx, *query, surface, canonical_from_cam * s.cam_from_model * model_turn,
+                      &twin);
       if (on_table && !PutOnTable(ctx, &twin)) continue;
       pool->hypotheses.push_back(std::move(twin));
       added = true;
@@ -672,38 +681,28 @@ bool AddSiblingsOf(const SceneContext& ctx, const Hypothesis& h, HypothesisPool*
   const Stopwatch watch;
   const PoseQuery* query = ClusterPoseQuery(ctx, h.cluster, pool);
   if (query == nullptr) return false;
-  const Rigid3d cam_from_canonical(query->cam_from_canonical, Eigen::Vector3d::Zero());
-  const Rigid3d canonical_from_cam = cam_from_canonical.Inverse();
-  const PoseOptions& pose_options = ctx.options.recognition.pose;
+  const Rigid3d canonical_from_cam =
+      Rigid3d(query->cam_from_canonical, Eigen::Vector3d::Zero()).Inverse();
   const bool on_table = ctx.options.snap_to_plane && ctx.plane.found;
   bool added = false;
   for (const auto& [distance, m] : by_size) {
     const PointCloud& surface = ctx.scene_recogniser.ModelSurface(m, ctx.options.model_leaf);
-    std::vector<Eigen::Vector3f> model_points, model_normals;
-    const size_t stride = std::max<size_t>(1, surface.size() / kTwinIcpPoints);
-    for (size_t i = 0; i < surface.size(); i += stride) {
-      model_points.push_back(surface.points[i]);
-      model_normals.push_back(surface.normals[i]);
-    }
-    const IcpResult icp = RefinePose(model_points, model_normals, *query,
-                                     canonical_from_cam * s.cam_from_model, pose_options);
     Hypothesis sibling = h;
     sibling.sibling = true;
     sibling.flipped = sibling.twin = sibling.rested = false;
-    sibling.snap = 0.0;
     Suggestion& front = sibling.recognition.suggestions[0];
     const ModelRecord& model = db.model(m);
     front.model = m;
     front.model_name = model.name;
-    front.view = NearestModelView(db, m, icp.canonical_from_model);
+    const Rigid3d canonical_from_model =
+        RefineOnCluster(ctx, *query, surface, canonical_from_cam * s.cam_from_model, &sibling)
+            .canonical_from_model;
+    front.view = NearestModelView(db, m, canonical_from_model);
     front.viewpoint = db.view(front.view).viewpoint;
-    front.cam_from_model = cam_from_canonical * icp.canonical_from_model;
-    front.icp_iterations = icp.iterations;
-    front.icp_rms = icp.rms;
     const PointCloud view_cloud = db.ViewCloud(front.view);
     front.alignment = ScoreAlignment(view_cloud.points, view_cloud.normals,
                                      db.view(front.view).cloud_spacing, *query,
-                                     icp.canonical_from_model, pose_options);
+                                     canonical_from_model, ctx.options.recognition.pose);
     front.score = front.alignment.score;
     if (on_table && !PutOnTable(ctx, &sibling)) continue;
     spdlog::debug("cluster {}: sibling {} of {} (size distance {:.3f} m), score {:.3f}",
@@ -799,36 +798,23 @@ bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, Hypothesi
   if (query == nullptr) return false;
   const Rigid3d cam_from_canonical(query->cam_from_canonical, Eigen::Vector3d::Zero());
   const Eigen::Vector3d centre = ctx.database.model(s.model).center;
+  Hypothesis out = h;
+  out.flipped = out.twin = out.rested = out.sibling = false;
   Rigid3d pose = s.cam_from_model;
   Eigen::Vector3d scale = Eigen::Vector3d::Ones();
   PointCloud scaled;
-  IcpResult icp;
   for (int round = 0; round < kScaleRounds; ++round) {
     Eigen::Vector3d shift = Eigen::Vector3d::Zero();
     if (!ScaleToCluster(ctx, surface, cluster, pose, centre, &scale, &shift)) return false;
     if (round == 0 && (scale.array() - 1.0).abs().maxCoeff() < 0.05) return false;
     ScaleSurface(surface, scale, centre, &scaled);
-    std::vector<Eigen::Vector3f> points, normals;
-    const size_t stride = std::max<size_t>(1, scaled.size() / kTwinIcpPoints);
-    for (size_t i = 0; i < scaled.size(); i += stride) {
-      points.push_back(scaled.points[i]);
-      normals.push_back(scaled.normals[i]);
-    }
     pose.translation += pose.rotation * shift;
-    icp = RefinePose(points, normals, *query, cam_from_canonical.Inverse() * pose,
-                     ctx.options.recognition.pose);
-    pose = cam_from_canonical * icp.canonical_from_model;
+    RefineOnCluster(ctx, *query, scaled, cam_from_canonical.Inverse() * pose, &out);
+    pose = out.recognition.suggestions[0].cam_from_model;
   }
   pool->scaled_surfaces.push_back(std::move(scaled));
-  Hypothesis out = h;
   out.surface = &pool->scaled_surfaces.back();
   out.scale = scale;
-  out.flipped = out.twin = out.rested = out.sibling = false;
-  out.snap = 0.0;
-  Suggestion& front = out.recognition.suggestions[0];
-  front.cam_from_model = pose;
-  front.icp_iterations = icp.iterations;
-  front.icp_rms = icp.rms;
   if (ctx.options.snap_to_plane && ctx.plane.found && !SnapToTable(ctx, &out)) return false;
   spdlog::debug("cluster {}: {} scaled by ({:.2f}, {:.2f}, {:.2f})", h.cluster, s.model_name,
                 scale.x(), scale.y(), scale.z());
