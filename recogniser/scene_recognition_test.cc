@@ -271,8 +271,8 @@ TEST_F(SceneRecognitionTest, UnseenInstancesPassAtClassLevelAndClutterDoesNot) {
 // Sibling hypotheses (SceneRecognitionOptions::sibling_hypotheses): the database holds
 // procedural bowls 0, 1, 5 and 12 and mug 0; on the table stand two unseen bowls, 1192
 // (12.4 cm wide, 5.3 cm high: bowl 1's size) and 1019 (16.7 × 7.6 cm: nearest bowl 12),
-// and the mug. Each bowl must be found as a bowl, posed within 5 mm of its centre, with
-// the database bowl nearest it in size; the mug as the mug. (Without siblings the
+// and the mug. Each bowl must be found as a bowl with the database bowl nearest it in
+// size, its centre within 5 mm along the table; the mug as the mug. (Without siblings the
 // recogniser, posing its first-ranked model only, gives bowl 1192 as bowl_5, 8.7 mm off,
 // which passes the instance-level tests; the comparison is printed.)
 TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSize) {
@@ -332,11 +332,18 @@ TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSi
       }
       ASSERT_NE(found, nullptr) << "the unseen bowl nearest " << t.nearest << " was not found";
       const PoseComparison error = ComparePoses(found->best().cam_from_model, t.pose, t.mesh);
-      std::printf("%s: found as %s, rotation %.2f°, centre %.2f mm\n", t.nearest.c_str(),
-                  found->best().model_name.c_str(), error.rotation_error_deg,
-                  1e3 * error.center_error_m);
+      // The database bowl is another instance, of another height (bowl 12 is 1.1 cm lower
+      // than bowl 1019): how high its centre sits is the instance's, not the pose's. The
+      // centre is checked along the table.
+      const Eigen::Vector3d up = frame.cam_from_world.col(2);
+      const Eigen::Vector3d offset =
+          found->best().cam_from_model * MakePoseTruthModel(t.mesh).center - centre;
+      const double along_table = (offset - offset.dot(up) * up).norm();
+      std::printf("%s: found as %s, rotation %.2f°, centre %.2f mm (%.2f mm along the table)\n",
+                  t.nearest.c_str(), found->best().model_name.c_str(), error.rotation_error_deg,
+                  1e3 * error.center_error_m, 1e3 * along_table);
       EXPECT_EQ(found->best().model_name, t.nearest);
-      EXPECT_LT(error.center_error_m, 0.005);
+      EXPECT_LT(along_table, 0.005);
     }
   }
 }
