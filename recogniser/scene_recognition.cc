@@ -1,9 +1,10 @@
 #include "recogniser/scene_recognition.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
-#include <limits>
 #include <deque>
+#include <limits>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -151,7 +152,8 @@ struct HypothesisPool {
   std::vector<RecognitionResult> cluster_results;  // per cluster
   // Second looks taken: per cluster (remainder, twins, split) and per joined pair (a
   // cluster and another cluster, or num_clusters + the accepted hypothesis it joined).
-  std::vector<uint8_t> remainder_tried, twins_tried, split_tried, siblings_tried;
+  std::vector<uint8_t> remainder_tried, twins_tried, split_tried;
+  bool size_looks_taken = false;  // siblings and scaled models (every cluster, once)
   // The surface samples of scaled hypotheses (Hypothesis::surface points into it).
   std::deque<PointCloud> scaled_surfaces;
   // Per cluster: its pose query (ClusterPoseQuery), built on first use.
@@ -654,19 +656,21 @@ Eigen::Vector3d SizeAlongTable(const std::vector<Eigen::Vector3f>& points,
   return Eigen::Vector3d(height, a1 - a0, b1 - b0);
 }
 
-// Siblings of the cluster's hypothesis `h` (AddSiblingHypotheses): the class's other
-// models nearest the cluster in size, in the pose of `h`, ICP-refined on the cluster's
-// points, scored against them as the recogniser scores a pose, and put down on the table.
-// Adds them to the pool; false when it added none.
-bool AddSiblingsOf(const SceneContext& ctx, const Hypothesis& h, HypothesisPool* pool) {
+// Siblings of the cluster's hypothesis `h` (AddSizeHypotheses): the other models of its
+// class (`class_models`, the class's database models) nearest the cluster in size, in the
+// pose of `h`, ICP-refined on the cluster's points, scored against them as the recogniser
+// scores a pose, and put down on the table. Adds them to the pool; false when it added none.
+bool AddSiblingsOf(const SceneContext& ctx, const Hypothesis& h,
+                   const std::vector<int>& class_models, HypothesisPool* pool) {
+  if (ctx.options.sibling_hypotheses <= 0) return false;
   const Database& db = ctx.database;
   const Suggestion& s = h.recognition.suggestions[0];
   const Eigen::Vector3d cluster_size =
       SizeAlongTable(ctx.clusters[h.cluster].cloud.points, Eigen::Matrix3d::Identity(),
                      ctx.plane, true);
   std::vector<std::pair<double, int>> by_size;
-  for (int m = 0; m < static_cast<int>(db.models().size()); ++m) {
-    if (m == s.model || db.model(m).class_index != s.class_index) continue;
+  for (const int m : class_models) {
+    if (m == s.model) continue;
     const PointCloud& surface = ctx.scene_recogniser.ModelSurface(m, ctx.options.model_leaf);
     if (surface.empty()) continue;
     const Eigen::Vector3d size =
@@ -724,12 +728,15 @@ std::pair<double, double> RobustRange(std::vector<double> values) {
   return {low, values[hi]};
 }
 
-// The per-axis scale (model frame) of the model `surface` that matches the cluster's
-// points seen at `cam_from_model` — the robust extent of the points along each model axis;
-// along the axis nearest the table normal, when it is within 26° of it, their height above
-// the table —, each factor within [1/max_scale, max_scale]; and the shift (model frame, 0
-// along that axis) that centres the model on them. False when the extents are degenerate.
-bool ScaleToCluster(const SceneContext& ctx, const PointCloud& surface, const PointCloud& cluster,
+// The per-axis scale (model frame) of a model whose robust extents along its axes are
+// `model_ranges` that matches the cluster's points seen at `cam_from_model` — the robust
+// extent of the points along each model axis; along the axis nearest the table normal,
+// when it is within 26° of it, their height above the table (`cluster_height`) —, each
+// factor within [1/max_scale, max_scale]; and the shift (model frame, 0 along that axis)
+// that centres the model on them. False when the extents are degenerate.
+bool ScaleToCluster(const SceneContext& ctx,
+                    const std::array<std::pair<double, double>, 3>& model_ranges,
+                    double cluster_height, const PointCloud& cluster,
                     const Rigid3d& cam_from_model, const Eigen::Vector3d& centre,
                     Eigen::Vector3d* scale, Eigen::Vector3d* shift) {
   const double max_scale = ctx.options.max_scale;
@@ -739,19 +746,16 @@ bool ScaleToCluster(const SceneContext& ctx, const PointCloud& surface, const Po
   up.cwiseAbs().maxCoeff(&vertical);
   const bool upright = std::abs(up[vertical]) > 0.9 && ctx.plane.found;
   for (int a = 0; a < 3; ++a) {
-    std::vector<double> seen(cluster.size()), model(surface.size());
+    std::vector<double> seen(cluster.size());
     for (size_t i = 0; i < cluster.size(); ++i) {
       seen[i] = (model_from_cam * cluster.points[i].cast<double>())[a];
     }
-    for (size_t i = 0; i < surface.size(); ++i) model[i] = surface.points[i][a];
     const auto [seen_low, seen_high] = RobustRange(std::move(seen));
-    const auto [model_low, model_high] = RobustRange(std::move(model));
+    const auto [model_low, model_high] = model_ranges[a];
     double extent = seen_high - seen_low;
     (*shift)[a] = 0.5 * (seen_low + seen_high) - centre[a];
     if (a == vertical && upright) {
-      std::vector<double> heights(cluster.size());
-      for (size_t i = 0; i < cluster.size(); ++i) heights[i] = ctx.plane.Height(cluster.points[i]);
-      extent = RobustRange(std::move(heights)).second;  // from the table up
+      extent = cluster_height;  // from the table up
       (*shift)[a] = 0.0;  // the height: put down on the table
     }
     if (!(model_high - model_low > 1e-3) || !(extent > 0)) return false;
@@ -781,19 +785,25 @@ constexpr int kScaleRounds = 3;
 // centre) to the cluster (ScaleToCluster), ICP-refined on the cluster; scale and pose
 // estimated again from the refined pose, kScaleRounds times; then put down on the table.
 // Added to the pool when some axis changed by 5% or more; false when nothing was added,
-// and for a class of one database model.
-bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, HypothesisPool* pool) {
-  if (!(ctx.options.max_scale > 1.0)) return false;
+// and for a class of one database model (`class_models`: its number of models), an
+// instance whose size is known.
+bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, size_t class_models,
+                         HypothesisPool* pool) {
+  if (!(ctx.options.max_scale > 1.0) || class_models < 2) return false;
   const Suggestion& s = h.recognition.suggestions[0];
-  // A class of one model is an instance: its size is known.
-  int class_models = 0;
-  for (const ModelRecord& model : ctx.database.models()) {
-    class_models += model.class_index == s.class_index;
-  }
-  if (class_models < 2) return false;
   const PointCloud& surface = ctx.scene_recogniser.ModelSurface(s.model, ctx.options.model_leaf);
   const PointCloud& cluster = ctx.clusters[h.cluster].cloud;
   if (surface.empty() || cluster.size() < 10) return false;
+  // What the rounds below do not change: the model's extents, the cluster's height.
+  std::array<std::pair<double, double>, 3> model_ranges;
+  for (int a = 0; a < 3; ++a) {
+    std::vector<double> model(surface.size());
+    for (size_t i = 0; i < surface.size(); ++i) model[i] = surface.points[i][a];
+    model_ranges[a] = RobustRange(std::move(model));
+  }
+  std::vector<double> heights(cluster.size());
+  for (size_t i = 0; i < cluster.size(); ++i) heights[i] = ctx.plane.Height(cluster.points[i]);
+  const double cluster_height = RobustRange(std::move(heights)).second;
   const PoseQuery* query = ClusterPoseQuery(ctx, h.cluster, pool);
   if (query == nullptr) return false;
   const Rigid3d cam_from_canonical(query->cam_from_canonical, Eigen::Vector3d::Zero());
@@ -805,7 +815,10 @@ bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, Hypothesi
   PointCloud scaled;
   for (int round = 0; round < kScaleRounds; ++round) {
     Eigen::Vector3d shift = Eigen::Vector3d::Zero();
-    if (!ScaleToCluster(ctx, surface, cluster, pose, centre, &scale, &shift)) return false;
+    if (!ScaleToCluster(ctx, model_ranges, cluster_height, cluster, pose, centre, &scale,
+                        &shift)) {
+      return false;
+    }
     if (round == 0 && (scale.array() - 1.0).abs().maxCoeff() < 0.05) return false;
     ScaleSurface(surface, scale, centre, &scaled);
     pose.translation += pose.rotation * shift;
@@ -822,20 +835,21 @@ bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, Hypothesi
   return true;
 }
 
-// Every cluster gets, once, the siblings (SceneRecognitionOptions::sibling_hypotheses) of
-// its first recognition's best posed suggestion of the class it ranks first, when that
-// class has at least the class-level probability — in the pose the recogniser found,
-// before the plane prior moved it (a hypothesis of the wrong size does not rest on the
-// table; turned onto a resting face it no longer fits either). Clusters already explained
+// Every cluster gets, once, the siblings (SceneRecognitionOptions::sibling_hypotheses) and
+// the scaled model (max_scale) of its first recognition's best posed suggestion of the
+// class it ranks first, when that class has at least the class-level probability — in
+// the pose the recogniser found, before the plane prior moved it (a hypothesis of the
+// wrong size does not rest on the table; turned onto a resting face it no longer fits
+// either). Clusters already explained
 // get them too: an unseen instance may pass the instance-level tests with a database
 // instance of another size (a bowl 13 cm wide posed as one of 12 cm) that a sibling fits
 // better. True when that added hypotheses.
-bool AddSiblingHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
-  if (ctx.options.sibling_hypotheses <= 0) return false;
+bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
+  if (pool->size_looks_taken) return false;
+  pool->size_looks_taken = true;
+  if (ctx.options.sibling_hypotheses <= 0 && !(ctx.options.max_scale > 1.0)) return false;
   bool added = false;
   for (size_t c = 0; c < ctx.clusters.size(); ++c) {
-    if (pool->siblings_tried[c]) continue;
-    pool->siblings_tried[c] = 1;
     const RecognitionResult& recognition = pool->cluster_results[c];
     if (recognition.classes.empty() ||
         recognition.classes.front().probability <
@@ -843,6 +857,10 @@ bool AddSiblingHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
       continue;
     }
     const int first_class = recognition.classes.front().class_index;
+    std::vector<int> class_models;
+    for (int m = 0; m < ctx.database.num_models(); ++m) {
+      if (ctx.database.model(m).class_index == first_class) class_models.push_back(m);
+    }
     for (size_t k = 0; k < recognition.suggestions.size(); ++k) {
       const Suggestion& s = recognition.suggestions[k];
       if (!s.posed || s.class_index != first_class) continue;
@@ -850,8 +868,8 @@ bool AddSiblingHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
       source.cluster = static_cast<int>(c);
       source.recognition = recognition;
       std::swap(source.recognition.suggestions[0], source.recognition.suggestions[k]);
-      added |= AddSiblingsOf(ctx, source, pool);
-      added |= AddScaledHypothesis(ctx, source, pool);
+      added |= AddSiblingsOf(ctx, source, class_models, pool);
+      added |= AddScaledHypothesis(ctx, source, class_models.size(), pool);
       break;
     }
   }
@@ -1237,7 +1255,6 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
   pool.cluster_results.resize(clusters.size());
   pool.remainder_tried.assign(clusters.size(), 0);
   pool.twins_tried.assign(clusters.size(), 0);
-  pool.siblings_tried.assign(clusters.size(), 0);
   pool.pose_queries.resize(clusters.size());
   pool.pose_query_built.assign(clusters.size(), 0);
   pool.split_tried.assign(clusters.size(), 0);
@@ -1269,7 +1286,7 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     bool added = AddRemainderHypotheses(ctx, explained, left, has_accepted, &pool);
     const double t_remainder = look.WallMs();
     added |= AddTwinsOfUnexplained(ctx, evidence, unexplained, &pool);
-    added |= AddSiblingHypotheses(ctx, &pool);
+    added |= AddSizeHypotheses(ctx, &pool);
     const double t_twins = look.WallMs();
     added |= AddSplitHypotheses(ctx, to_split, &pool);
     const double t_split = look.WallMs();
