@@ -10,6 +10,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/json.h"
+#include "core/plots.h"
 
 namespace sope {
 namespace internal {
@@ -42,7 +43,7 @@ const cv::Scalar kDropped(30, 30, 220);  // red
 
 void Text(cv::Mat* image, const std::string& text, cv::Point at, double scale = 0.45,
           const cv::Scalar& colour = kInk, int thickness = 1) {
-  cv::putText(*image, text, at, cv::FONT_HERSHEY_SIMPLEX, scale, colour, thickness, cv::LINE_AA);
+  cv::putText(*image, HersheyText(text), at, cv::FONT_HERSHEY_SIMPLEX, scale, colour, thickness, cv::LINE_AA);
 }
 
 // A "nice" axis maximum ≥ value: 1, 2 or 5 × 10^k.
@@ -250,7 +251,7 @@ cv::Mat DrawResidualPlot(const CalibrationSummary& summary) {
   if (!median_label.empty()) {  // on a white box, over the bars
     int baseline = 0;
     const cv::Size size =
-        cv::getTextSize(median_label, cv::FONT_HERSHEY_SIMPLEX, 0.4, 1, &baseline);
+        cv::getTextSize(HersheyText(median_label), cv::FONT_HERSHEY_SIMPLEX, 0.4, 1, &baseline);
     const cv::Point at(bars.x + bars.width - size.width - 12, median_y - 5);
     cv::rectangle(image,
                   cv::Rect(at.x - 3, at.y - size.height - 3, size.width + 6, size.height + 6),

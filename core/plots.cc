@@ -9,6 +9,41 @@
 #include "core/error.h"
 
 namespace sope {
+
+std::string HersheyText(const std::string& text) {
+  static const std::pair<const char*, const char*> kSymbols[] = {
+      {"\u2013", "-"},  {"\u2014", "-"},   {"\u2212", "-"},  {"\u2265", ">="},
+      {"\u2264", "<="}, {"\u00b0", " deg"}, {"\u00d7", "x"},  {"\u00b1", "+-"},
+      {"\u00b5", "u"},  {"\u03bc", "u"},    {"\u2192", "->"}, {"\u2026", "..."},
+      {"\u2018", "'"},  {"\u2019", "'"},    {"\u201c", "\""}, {"\u201d", "\""},
+      {"\u2248", "~"},  {"\u2260", "!="},   {"\u00b7", "."}};
+  std::string out;
+  out.reserve(text.size());
+  for (size_t i = 0; i < text.size();) {
+    const auto byte = static_cast<unsigned char>(text[i]);
+    if (byte < 0x80) {
+      out += text[i++];
+      continue;
+    }
+    bool replaced = false;
+    for (const auto& [symbol, ascii] : kSymbols) {
+      const size_t n = std::char_traits<char>::length(symbol);
+      if (text.compare(i, n, symbol) == 0) {
+        out += ascii;
+        i += n;
+        replaced = true;
+        break;
+      }
+    }
+    if (replaced) continue;
+    // One '?' per character: skip the lead byte and its continuation bytes.
+    out += '?';
+    ++i;
+    while (i < text.size() && (static_cast<unsigned char>(text[i]) & 0xC0) == 0x80) ++i;
+  }
+  return out;
+}
+
 namespace {
 
 const cv::Scalar kBlack(0, 0, 0);
@@ -18,12 +53,12 @@ constexpr int kFont = cv::FONT_HERSHEY_SIMPLEX;
 
 void Text(cv::Mat& image, const std::string& text, cv::Point origin, double scale,
           const cv::Scalar& colour = kBlack, int thickness = 1) {
-  cv::putText(image, text, origin, kFont, scale, colour, thickness, cv::LINE_AA);
+  cv::putText(image, HersheyText(text), origin, kFont, scale, colour, thickness, cv::LINE_AA);
 }
 
 int TextWidth(const std::string& text, double scale) {
   int baseline = 0;
-  return cv::getTextSize(text, kFont, scale, 1, &baseline).width;
+  return cv::getTextSize(HersheyText(text), kFont, scale, 1, &baseline).width;
 }
 
 // White (0) to dark blue (1).

@@ -22,4 +22,9 @@ cv::Mat DrawHistogram(const std::vector<double>& values, double lo, double hi, i
                       const std::string& title, const std::string& x_label,
                       double threshold = std::numeric_limits<double>::quiet_NaN());
 
+// `text` for OpenCV's Hershey fonts, which draw ASCII only (other bytes come out as '?'):
+// the symbols our messages use become ASCII ("–" → "-", "≥" → ">=", "°" → " deg", "×" → "x",
+// "µ" → "u", …); any other non-ASCII character becomes one '?'.
+std::string HersheyText(const std::string& text);
+
 }  // namespace sope

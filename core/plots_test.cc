@@ -46,5 +46,13 @@ TEST(Plots, HistogramBarsFollowTheCounts) {
   EXPECT_THROW_WITH_MESSAGE(DrawHistogram(values, 1.0, 0.0, 10, "bad", "x"), Error, "[1, 0]");
 }
 
+TEST(Plots, HersheyTextIsAsciiWithTheSymbolsSpelledOut) {
+  EXPECT_EQ(HersheyText("0.006\u20130.4 m above the plane"), "0.006-0.4 m above the plane");
+  EXPECT_EQ(HersheyText("\u2265 15\u00b0, 2\u00d73 \u00b5m"), ">= 15 deg, 2x3 um");
+  // Any other character is one '?', whatever its length in bytes.
+  EXPECT_EQ(HersheyText("caf\u00e9 \u6771 \U0001F600!"), "caf? ? ?!");
+  EXPECT_EQ(HersheyText("plain ASCII"), "plain ASCII");
+}
+
 }  // namespace
 }  // namespace sope

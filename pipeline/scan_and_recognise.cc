@@ -16,6 +16,7 @@
 #include "core/error.h"
 #include "core/file_util.h"
 #include "core/json.h"
+#include "core/plots.h"
 #include "core/point_cloud.h"
 #include "core/stopwatch.h"
 #include "recogniser/tools/scan_recognition.h"
@@ -514,7 +515,8 @@ cv::Mat DrawTableOverlay(const ScanReport& report, const Database& database) {
     }
   }
   const double scale = std::max(0.5, image.cols / 1800.0);
-  for (const auto& [at, text] : labels) {
+  for (const auto& [at, utf8_text] : labels) {
+    const std::string text = HersheyText(utf8_text);
     int baseline = 0;
     const cv::Size size = cv::getTextSize(text, cv::FONT_HERSHEY_SIMPLEX, scale, 1, &baseline);
     const cv::Point origin(at.x - size.width / 2, at.y);

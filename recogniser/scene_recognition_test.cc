@@ -766,6 +766,44 @@ TEST(TableSegmentation, SplitsSeparateBlocksOnAPlane) {
   }
 }
 
+TEST(TableSegmentation, TheTableIsThePlaneBeneathABigBoxTop) {
+  // Seen straight down from 0.6 m: a 40 × 40 cm table (2 mm grid) with a 30 × 30 cm box
+  // 10 cm high on it and a 4 cm cube's top 3 cm above the table beside it. The box top
+  // holds more points than the table left in view (9 of 16 parts), so RANSAC finds it
+  // first; the table is the parallel plane below, and the box and the cube stand on it.
+  PointCloud cloud;
+  const auto on_box = [](float x, float y) { return x >= -0.2f && x < 0.1f && y >= -0.2f && y < 0.1f; };
+  for (int i = 0; i < 200; ++i) {
+    for (int k = 0; k < 200; ++k) {
+      const float x = -0.2f + 0.002f * i, y = -0.2f + 0.002f * k;
+      cloud.points.emplace_back(x, y, on_box(x, y) ? 0.5f : 0.6f);
+    }
+  }
+  const size_t box_top_points = 150 * 150;
+  for (int i = 0; i < 50; ++i) {  // the box's two visible sides (vertical, 2 mm grid)
+    for (int k = 0; k < 150; ++k) {
+      const float z = 0.5f + 0.002f * i, along = -0.2f + 0.002f * k;
+      cloud.points.emplace_back(0.1f, along, z);
+      cloud.points.emplace_back(along, 0.1f, z);
+    }
+  }
+  const size_t cube_first = cloud.size();
+  for (int i = 0; i < 20; ++i) {
+    for (int k = 0; k < 20; ++k) cloud.points.emplace_back(0.15f + 0.002f * i, 0.15f + 0.002f * k, 0.57f);
+  }
+  const TableSegmentation seg = SegmentTable(cloud);
+  ASSERT_TRUE(seg.plane.found) << seg.message;
+  EXPECT_NEAR(std::abs(seg.plane.normal.z()), 1.0, 1e-4);
+  // The table, not the box top 10 cm above it (the box's sides within plane_distance of the
+  // table pull the fit by ~0.2 mm).
+  EXPECT_NEAR(seg.plane.offset, 0.6, 1e-3);
+  EXPECT_LT(static_cast<size_t>(seg.plane.inliers), box_top_points);
+  ASSERT_EQ(seg.clusters.size(), 2u);
+  EXPECT_GT(seg.clusters[0].indices.size(), box_top_points);  // the box: top and sides
+  EXPECT_EQ(seg.clusters[1].indices.size(), 400u);            // the cube
+  EXPECT_EQ(static_cast<size_t>(seg.clusters[1].indices.front()), cube_first);
+}
+
 TEST(TableSegmentation, GridClustersEqualPclEuclideanClusters) {
   // A plane at z = 0.6 m and six blobs of random points above it: four far apart (1 cm
   // gaps, > 7.5 mm tolerance: separate objects), two touching (a 2 mm gap: one cluster).

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <initializer_list>
 #include <unordered_map>
 
 #include <Eigen/Eigenvalues>
@@ -189,6 +190,22 @@ std::vector<int> RangeBand(const PointCloud& cloud, const TableSegmentationOptio
   return band;
 }
 
+// The plane refitted by least squares on its inliers among `band`, once per tolerance
+// (metres) in `tolerances`; `inliers` counts those of the last round. False when a fit fails.
+bool RefitOnInliers(const PointCloud& cloud, const std::vector<int>& band,
+                    std::initializer_list<double> tolerances, TablePlane* plane) {
+  std::vector<int> inliers;
+  for (const double tolerance : tolerances) {
+    inliers.clear();
+    for (int i : band) {
+      if (std::abs(plane->Height(cloud.points[i])) <= tolerance) inliers.push_back(i);
+    }
+    plane->inliers = static_cast<int>(inliers.size());
+    if (!FitPlane(cloud.points, inliers, plane)) return false;
+  }
+  return true;
+}
+
 // The table plane: RANSAC on an even subsample of the band, then least squares on every
 // inlier (twice). `found` when at least `needed` (and 3) band points lie on it.
 TablePlane FitTablePlane(const PointCloud& cloud, const std::vector<int>& band,
@@ -218,18 +235,54 @@ TablePlane FitTablePlane(const PointCloud& cloud, const std::vector<int>& band,
   if (!(norm > 0 && std::isfinite(norm))) return plane;
   plane.normal = normal / norm;
   plane.offset = coefficients[3] / norm;
-  std::vector<int> inliers;
-  for (int round = 0; round < 2; ++round) {  // refit on all raw inliers, twice
-    inliers.clear();
+  RefitOnInliers(cloud, band, {options.plane_distance, options.plane_distance}, &plane);
+  plane.found = static_cast<size_t>(plane.inliers) >= std::max<size_t>(needed, 3);
+  return plane;
+}
+
+// A horizontal face larger than the visible table (the top of a big box, a tray) wins the
+// RANSAC: everything then lies below "the table" and nothing stands on it. The table is the
+// plane the objects rest on, so while a plane parallel to the found one (within
+// kParallelDegrees) lies below it — no farther than max_height (a floor under a desk is
+// farther) — and holds at least `needed` band points, that plane is taken instead. Candidate
+// heights are the peaks of a histogram of the band's heights below the plane (bins
+// plane_distance wide): a parallel face piles its points into one bin, walls and slopes
+// spread theirs.
+TablePlane DescendToSupportingPlane(const PointCloud& cloud, const std::vector<int>& band,
+                                    const TableSegmentationOptions& options, size_t needed,
+                                    TablePlane plane) {
+  constexpr double kParallelDegrees = 8.0;
+  const double min_gap = std::max(2.0 * options.min_height, 3.0 * options.plane_distance);
+  const double bin = options.plane_distance;
+  const int bins = static_cast<int>(std::ceil(options.max_height / bin)) + 1;
+  for (int step = 0; step < 4; ++step) {
+    std::vector<int> count(bins, 0);
     for (int i : band) {
-      if (std::abs(plane.Height(cloud.points[i])) <= options.plane_distance) {
-        inliers.push_back(i);
-      }
+      const double depth = -plane.Height(cloud.points[i]);  // below the plane: > 0
+      if (depth < min_gap || depth > options.max_height) continue;
+      ++count[std::min(bins - 1, static_cast<int>(depth / bin))];
     }
-    if (!FitPlane(cloud.points, inliers, &plane)) break;
+    // The fullest bin with its two neighbours (a face's points straddle bin edges).
+    int best = -1, best_count = 0;
+    for (int b = 0; b < bins; ++b) {
+      const int c = count[b] + (b > 0 ? count[b - 1] : 0) + (b + 1 < bins ? count[b + 1] : 0);
+      if (c > best_count) best = b, best_count = c;
+    }
+    if (best < 0 || static_cast<size_t>(best_count) < needed) return plane;
+    TablePlane lower = plane;
+    lower.offset = plane.offset + static_cast<float>((best + 0.5) * bin);  // shifted down
+    // A face slightly tilted against the found plane (fitted with a few points of the box's
+    // sides) straddles several bins: the first fit takes a wider slab.
+    const double d = options.plane_distance;
+    if (!RefitOnInliers(cloud, band, {3 * d, d, d}, &lower)) return plane;
+    const double cos_angle = std::abs(static_cast<double>(lower.normal.dot(plane.normal)));
+    if (cos_angle < std::cos(kParallelDegrees * M_PI / 180.0) ||
+        static_cast<size_t>(lower.inliers) < needed || lower.offset <= plane.offset) {
+      return plane;
+    }
+    lower.found = true;
+    plane = lower;
   }
-  plane.inliers = static_cast<int>(inliers.size());
-  plane.found = inliers.size() >= std::max<size_t>(needed, 3);
   return plane;
 }
 
@@ -342,6 +395,7 @@ TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationO
   // 1. RANSAC on an even subsample, then least squares on every inlier.
   const size_t needed = static_cast<size_t>(std::ceil(options.min_plane_fraction * band.size()));
   TablePlane plane = FitTablePlane(cloud, band, options, needed);
+  if (plane.found) plane = DescendToSupportingPlane(cloud, band, options, needed, plane);
   out.plane = plane;
   if (!plane.found) {
     out.message = fmt::format("no plane: {} of {} points on the best plane (at least {} needed)",

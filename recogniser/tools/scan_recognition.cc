@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
+#include "core/plots.h"
 #include "core/split_mix.h"
 #include "core/stopwatch.h"
 #include "core/units.h"
@@ -39,7 +40,8 @@ cv::Mat ToBgr(const cv::Mat& image) {
   return bgr;
 }
 
-void DrawLabel(cv::Mat* image, const std::string& label) {
+void DrawLabel(cv::Mat* image, const std::string& utf8_label) {
+  const std::string label = HersheyText(utf8_label);
   const int font = cv::FONT_HERSHEY_SIMPLEX;
   const double scale = std::max(0.5, image->cols / 1400.0);
   const int thickness = std::max(1, static_cast<int>(std::lround(2 * scale)));
