@@ -105,9 +105,10 @@ double ThreadCpuMs() {
   return 1e3 * static_cast<double>(t.tv_sec) + 1e-6 * static_cast<double>(t.tv_nsec);
 }
 
-// The tabletop path with the given clustering of the table segmentation.
+// The tabletop path with the given clustering of the table segmentation (rolled
+// hypotheses: `roll_steps`, < 0 the default).
 void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clustering,
-              std::vector<double>* totals_out, bool second_looks = true) {
+              std::vector<double>* totals_out, bool second_looks = true, int roll_steps = -1) {
   const Input& input = GetInput();
   const SceneRecogniser recogniser(*input.db);
   std::vector<double> total, cpu, scene_ms, segment_ms;
@@ -122,6 +123,7 @@ void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clus
     options.segmentation.max_range = in.band ? in.band->max_range : 2.0;
     options.segmentation.clustering = clustering;
     if (!second_looks) options.second_look_rounds = 0;
+    if (roll_steps >= 0) options.roll_steps = roll_steps;
     const SceneRecognitionResult scene = recogniser.Recognise(result.triangulation.cloud, options);
     const double ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
@@ -146,6 +148,13 @@ void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clus
 
 std::vector<double> pcl_cpu;
 std::vector<double> first_look_cpu;
+std::vector<double> no_rolls_cpu;
+
+void BM_Table_AllObjects_NoRolls(benchmark::State& state) {
+  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &no_rolls_cpu, true, 0);
+  state.SetLabel("peer: the same without rolled hypotheses (models turned about their axis of "
+                 "near symmetry)");
+}
 
 void BM_Table_AllObjects_FirstLookOnly(benchmark::State& state) {
   RunTable(state, TableSegmentationOptions::Clustering::kGrid, &first_look_cpu, false);
@@ -163,6 +172,9 @@ void BM_Table_AllObjects(benchmark::State& state) {
   if (!pcl_cpu.empty()) {
     state.counters["cpu_ratio_vs_pcl_clustering"] =
         Quantile(table_totals, 0.5) / Quantile(pcl_cpu, 0.5);
+  }
+  if (!no_rolls_cpu.empty()) {
+    state.counters["cpu_ratio_vs_no_rolls"] = Quantile(table_totals, 0.5) / Quantile(no_rolls_cpu, 0.5);
   }
   if (!first_look_cpu.empty()) {
     state.counters["cpu_ratio_vs_first_look_only"] =
@@ -236,6 +248,7 @@ void BM_SingleObjectPath(benchmark::State& state) {
 BENCHMARK(BM_Segment_PclKdTree)->Iterations(5 * kScenes);
 BENCHMARK(BM_Segment_Grid)->Iterations(5 * kScenes);
 BENCHMARK(BM_Table_AllObjects_PclClustering)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Table_AllObjects_NoRolls)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects_FirstLookOnly)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_SingleObjectPath)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);

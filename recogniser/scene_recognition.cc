@@ -8,6 +8,7 @@
 #include <map>
 #include <mutex>
 #include <optional>
+#include <functional>
 #include <set>
 #include <unordered_map>
 
@@ -79,6 +80,7 @@ struct Hypothesis {
   bool twin = false;  // a half-turn twin of another hypothesis, refined on its cluster
   bool rested = false;  // turned onto a resting face of its model (it did not rest)
   bool sibling = false;  // another model of the class in another hypothesis's pose, refined
+  bool rolled = false;   // turned about its model's axis of near symmetry, refined
   // A model scaled per axis (its own surface sample, `scale` in the model frame about the
   // model's centre) to the cluster's size; null: the model's surface as it is.
   const PointCloud* surface = nullptr;
@@ -309,9 +311,9 @@ bool PutOnTable(const SceneContext& ctx, Hypothesis* h) {
 
 // Recognises `points` of `cluster` and adds up to hypotheses_per_cluster hypotheses (each
 // posed suggestion scoring at least min_hypothesis_score, put down on the table, and its
-// flipped twin) to the pool.
-void AddClusterHypotheses(const SceneContext& ctx, int cluster, const PointCloud& points,
-                          HypothesisPool* pool) {
+// flipped twin) to the pool. Returns the recognition.
+RecognitionResult AddClusterHypotheses(const SceneContext& ctx, int cluster,
+                                       const PointCloud& points, HypothesisPool* pool) {
   const SceneRecognitionOptions& options = ctx.options;
   const Stopwatch watch;
   const RecognitionResult recognition = RecogniseCluster(ctx, points);
@@ -345,22 +347,27 @@ void AddClusterHypotheses(const SceneContext& ctx, int cluster, const PointCloud
     pool->hypotheses.push_back(std::move(h));
     ++taken;
   }
+  return recognition;
 }
 
 // The cluster's points as the recogniser's pose stages see them (pre-processed with the
 // database's options, canonical frame, projective grid); null when too few points
-// survive. Built once per cluster (twins and siblings share it).
+// survive. Built once per cluster (twins and siblings share it). PoseQueryOfPoints: the same
+// for any points (nullopt when too few survive).
+std::optional<PoseQuery> PoseQueryOfPoints(const SceneContext& ctx, const PointCloud& points) {
+  try {
+    const PreprocessedCloud preprocessed = Preprocess(points, ctx.database.options().preprocess);
+    return PoseQueryOf(ctx.database, preprocessed, ctx.options.recognition.pose);
+  } catch (const Error&) {
+    return std::nullopt;
+  }
+}
+
 const PoseQuery* ClusterPoseQuery(const SceneContext& ctx, int cluster, HypothesisPool* pool) {
   std::optional<PoseQuery>& query = pool->pose_queries[cluster];
   if (!pool->pose_query_built[cluster]) {
     pool->pose_query_built[cluster] = 1;
-    try {
-      const PreprocessedCloud preprocessed =
-          Preprocess(ctx.clusters[cluster].cloud, ctx.database.options().preprocess);
-      query = PoseQueryOf(ctx.database, preprocessed, ctx.options.recognition.pose);
-    } catch (const Error&) {
-      query.reset();
-    }
+    query = PoseQueryOfPoints(ctx, ctx.clusters[cluster].cloud);
   }
   return query ? &*query : nullptr;
 }
@@ -495,6 +502,58 @@ std::vector<std::pair<int, int>> NeighbouringLabels(const ThinnedScene& scene,
   return pairs;
 }
 
+// The best posed suggestion of each class `recognition` (of `cluster`'s points, or of them
+// joined with a neighbour's) gives at least roll_min_class_probability, turned about its
+// model's axis of near symmetry (SceneRecognitionOptions::roll_steps) — in the pose the
+// recogniser found, before the plane prior moved it —, each turn ICP-refined on the pose
+// query of the same points (`query_of`, called when first needed; null: nothing to refine
+// on) and put down on the table; classes in `skip` are left out. True when that added
+// hypotheses.
+bool AddRolledOf(const SceneContext& ctx, const RecognitionResult& recognition, int cluster,
+                 const std::function<const PoseQuery*()>& query_of, HypothesisPool* pool,
+                 const std::set<int>& skip = {}) {
+  const SceneRecognitionOptions& options = ctx.options;
+  const bool on_table = options.snap_to_plane && ctx.plane.found;
+  bool added = false;
+  for (const ClassScore& class_score : recognition.classes) {
+    if (class_score.probability < options.roll_min_class_probability ||
+        skip.count(class_score.class_index)) {
+      continue;
+    }
+    const auto s = std::find_if(
+        recognition.suggestions.begin(), recognition.suggestions.end(),
+        [&](const Suggestion& x) { return x.posed && x.class_index == class_score.class_index; });
+    if (s == recognition.suggestions.end()) continue;
+    const NearSymmetryAxis& axis = ctx.scene_recogniser.SymmetryAxis(s->model, options.model_leaf);
+    if (!axis.found || axis.asymmetric_fraction < options.roll_min_asymmetry) continue;
+    const PoseQuery* query = query_of();
+    if (query == nullptr) return added;
+    const Rigid3d canonical_from_cam =
+        Rigid3d(query->cam_from_canonical, Eigen::Vector3d::Zero()).Inverse();
+    const PointCloud& surface = ctx.scene_recogniser.ModelSurface(s->model, options.model_leaf);
+    Hypothesis source;
+    source.cluster = cluster;
+    source.recognition = recognition;
+    std::iter_swap(source.recognition.suggestions.begin(),
+                   source.recognition.suggestions.begin() + (s - recognition.suggestions.begin()));
+    for (int k = 1; k < options.roll_steps; ++k) {
+      const Eigen::Matrix3d turn =
+          Eigen::AngleAxisd(2.0 * M_PI * k / options.roll_steps, axis.direction).toRotationMatrix();
+      const Rigid3d model_turn(turn, axis.point - turn * axis.point);
+      Hypothesis rolled = source;
+      rolled.rolled = true;
+      RefineOnCluster(ctx, *query, surface, canonical_from_cam * s->cam_from_model * model_turn,
+                      &rolled);
+      if (on_table && !PutOnTable(ctx, &rolled)) continue;
+      spdlog::debug("cluster {}: {} turned {}° about its axis", cluster, s->model_name,
+                    360 * k / options.roll_steps);
+      pool->hypotheses.push_back(std::move(rolled));
+      added = true;
+    }
+  }
+  return added;
+}
+
 // Each cluster nothing explains, recognised joined with what lies within join_distance of
 // it: another such cluster, or the points of an accepted hypothesis (an object whose part
 // the shadow cut off — its pose, found without that part, may be wrong). The hypotheses go
@@ -545,8 +604,21 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     const size_t size_a = joined.size();
     const int cluster_b = points_of(b, &joined);
     const size_t before = pool->hypotheses.size();
-    AddClusterHypotheses(ctx, size_a >= joined.size() - size_a ? cluster_a : cluster_b, joined,
-                         pool);
+    const int owner = size_a >= joined.size() - size_a ? cluster_a : cluster_b;
+    const RecognitionResult recognition = AddClusterHypotheses(ctx, owner, joined, pool);
+    // A handle the shadow cut off the body: turned about the body's axis and refined on
+    // both parts, the model can put it where it was seen.
+    if (options.roll_steps > 1) {
+      std::optional<PoseQuery> query;
+      bool built = false;
+      AddRolledOf(
+          ctx, recognition, owner,
+          [&]() -> const PoseQuery* {
+            if (!built) query = PoseQueryOfPoints(ctx, joined), built = true;
+            return query ? &*query : nullptr;
+          },
+          pool);
+    }
     spdlog::debug("{} {} and cluster {} joined ({} points): {} hypotheses",
                   b < num_clusters ? "cluster" : "the object of cluster", cluster_b, cluster_a,
                   joined.size(), pool->hypotheses.size() - before);
@@ -876,6 +948,31 @@ bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
   return added;
 }
 
+// Every cluster's first recognition gets its rolled hypotheses (AddRolledOf), once, for
+// the classes none of its hypotheses was accepted as in `evidence` (a mug already found
+// needs no other turn to be a mug). True when that added hypotheses.
+bool AddRolledHypotheses(const SceneContext& ctx, const std::vector<HypothesisEvidence>& evidence,
+                         HypothesisPool* pool) {
+  if (ctx.options.roll_steps <= 1) return false;
+  const Stopwatch watch;
+  std::vector<std::set<int>> accepted_classes(ctx.clusters.size());
+  for (size_t h = 0; h < evidence.size(); ++h) {
+    if (!evidence[h].accepted) continue;
+    const Hypothesis& hypothesis = pool->hypotheses[h];
+    accepted_classes[hypothesis.cluster].insert(hypothesis.recognition.suggestions[0].class_index);
+  }
+  bool added = false;
+  for (size_t c = 0; c < ctx.clusters.size(); ++c) {
+    const int cluster = static_cast<int>(c);
+    added |= AddRolledOf(
+        ctx, pool->cluster_results[c], cluster,
+        [&ctx, cluster, pool] { return ClusterPoseQuery(ctx, cluster, pool); }, pool,
+        accepted_classes[c]);
+  }
+  pool->recognise_ms += watch.WallMs();
+  return added;
+}
+
 // Verifies every hypothesis of the pool against the scene (VerifyHypotheses), each with its
 // stability prior and class evidence.
 std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPool* pool) {
@@ -886,11 +983,14 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
   for (const Hypothesis& h : pool->hypotheses) {
     const Suggestion& s = h.recognition.suggestions[0];
     const PointCloud& surface = SurfaceOf(ctx, h);
-    const double prior =
+    const double stability =
         plane.found ? options.stability_weight *
                           std::max(0.0, CentreOfMassHeight(surface, s.cam_from_model, plane,
                                                            ctx.database.model(s.model).diameter))
                     : 0.0;
+    const double prior =
+        stability +
+        options.class_weight * (1.0 - ClassProbability(h.recognition, s.class_index));
     const std::vector<ClassScore>& classes = h.recognition.classes;
     const double class_probability =
         !classes.empty() && classes.front().class_index == s.class_index
@@ -977,7 +1077,7 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
     const HypothesisEvidence& e = evidence[h];
     const Eigen::Vector3f& c = ctx.clusters[hypotheses[h].cluster].centroid;
     spdlog::debug("hypothesis cluster={} centroid=({:.4f},{:.4f},{:.4f}) class={} model={} "
-                  "score={:.3f} class_p={:.3f} flipped={} twin={} rested={} sibling={} "
+                  "score={:.3f} class_p={:.3f} flipped={} twin={} rested={} sibling={} rolled={} "
                   "fit={:.3f} "
                   "local={:.3f} "
                   "viol={:.3f} visible={} explained={} duplicates={} violations={} passes={} "
@@ -985,7 +1085,7 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
                   hypotheses[h].cluster, c.x(), c.y(), c.z(), s.class_name, s.model_name,
                   s.score, ClassProbability(hypotheses[h].recognition, s.class_index),
                   hypotheses[h].flipped, hypotheses[h].twin, hypotheses[h].rested,
-                  hypotheses[h].sibling, e.model_fit,
+                  hypotheses[h].sibling, hypotheses[h].rolled, e.model_fit,
                   e.local_explained,
                   e.violation_fraction,
                   e.visible, e.explained.size(), e.duplicates, e.violations, e.passes,
@@ -1116,6 +1216,7 @@ struct SceneRecogniser::Cache {
   std::mutex mutex;
   std::map<std::pair<int, double>, std::unique_ptr<PointCloud>> surfaces;
   std::map<std::pair<int, double>, std::unique_ptr<std::vector<Eigen::Vector3d>>> resting;
+  std::map<std::pair<int, double>, std::unique_ptr<NearSymmetryAxis>> axes;
 };
 
 void SceneRecognitionOptions::Check() const {
@@ -1162,8 +1263,16 @@ void SceneRecognitionOptions::Check() const {
              max_scale);
   SOPE_CHECK(sibling_hypotheses >= 0,
              "scene recognition: sibling hypotheses must be ≥ 0, got {}", sibling_hypotheses);
+  SOPE_CHECK(roll_steps >= 0, "scene recognition: roll steps must be ≥ 0, got {}", roll_steps);
+  SOPE_CHECK(roll_min_class_probability >= 0 && roll_min_class_probability <= 1,
+             "scene recognition: roll min class probability must be in [0, 1], got {}",
+             roll_min_class_probability);
+  SOPE_CHECK(roll_min_asymmetry >= 0 && roll_min_asymmetry <= 1,
+             "scene recognition: roll min asymmetry must be in [0, 1], got {}", roll_min_asymmetry);
   SOPE_CHECK(stability_weight >= 0, "scene recognition: stability weight must be ≥ 0, got {}",
              stability_weight);
+  SOPE_CHECK(class_weight >= 0 && class_weight <= 1,
+             "scene recognition: class weight must be in [0, 1], got {}", class_weight);
   SOPE_CHECK(scene_leaf > 0 && model_leaf > 0,
              "scene recognition: leaves must be > 0 m, got {} and {}", scene_leaf, model_leaf);
 }
@@ -1214,6 +1323,19 @@ const std::vector<Eigen::Vector3d>& SceneRecogniser::RestingNormals(int model,
     }
   } catch (const Error& e) {
     spdlog::debug("model {}: no resting faces ({})", database_.model(model).name, e.what());
+  }
+  return *slot;
+}
+
+const NearSymmetryAxis& SceneRecogniser::SymmetryAxis(int model, double leaf) const {
+  const PointCloud& surface = ModelSurface(model, leaf);
+  std::lock_guard<std::mutex> lock(cache_->mutex);
+  std::unique_ptr<NearSymmetryAxis>& slot = cache_->axes[{model, leaf}];
+  if (!slot) {
+    slot = std::make_unique<NearSymmetryAxis>(FindNearSymmetryAxis(surface.points, 1.5 * leaf));
+    spdlog::debug("model {}: {} axis of near symmetry (walls {:.2f}, turning moves {:.3f})",
+                  database_.model(model).name, slot->found ? "an" : "no", slot->wall_fraction,
+                  slot->asymmetric_fraction);
   }
   return *slot;
 }
@@ -1286,7 +1408,9 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     bool added = AddRemainderHypotheses(ctx, explained, left, has_accepted, &pool);
     const double t_remainder = look.WallMs();
     added |= AddTwinsOfUnexplained(ctx, evidence, unexplained, &pool);
+    const bool first_size_look = !pool.size_looks_taken;
     added |= AddSizeHypotheses(ctx, &pool);
+    if (first_size_look) added |= AddRolledHypotheses(ctx, evidence, &pool);
     const double t_twins = look.WallMs();
     added |= AddSplitHypotheses(ctx, to_split, &pool);
     const double t_split = look.WallMs();

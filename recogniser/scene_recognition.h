@@ -16,6 +16,7 @@
 #include "core/point_cloud.h"
 #include "recogniser/convex_segmentation.h"
 #include "recogniser/database.h"
+#include "recogniser/near_symmetry.h"
 #include "recogniser/recogniser.h"
 #include "recogniser/scene_verification.h"
 #include "recogniser/segmentation.h"
@@ -53,6 +54,11 @@ struct SceneRecognitionOptions {
   // down on it. 0: such suggestions are dropped.
   double max_rest_turn_deg = 45.0;
   double stability_weight = 0.2;
+  // The class evidence in the selection: a hypothesis's gain also loses class_weight × (1 −
+  // the probability the recogniser gave its class) of its explained points — of two that
+  // explain the scene about alike (a mug with its handle found and a glass a little wider),
+  // the one of the class the views point to wins (0: geometry alone).
+  double class_weight = 0.1;
   // Clusters of more points are evenly subsampled to this many before recognition (the
   // recogniser thins to its 4 mm voxel leaf anyway; a dense scan has ~10 points per voxel).
   int max_recognition_points = 20000;
@@ -85,6 +91,17 @@ struct SceneRecognitionOptions {
   // classes of two or more database models (a class of one model is an instance, whose
   // size is known: the YCB tables, where scaled models only took wrong poses).
   double max_scale = 1.6;
+  // Each cluster's best posed suggestion of every class its recognition gives at least
+  // roll_min_class_probability, when that model is nearly a body of revolution with a part
+  // off it (a mug's or a saucepan's handle: recogniser/near_symmetry.h, at least
+  // roll_min_asymmetry of its surface moves when turned), is also tried turned about that
+  // axis in roll_steps equal steps (the turns other than none), each ICP-refined on the
+  // cluster and put down on the table (≤ 1: none). The pose search fits the body and
+  // leaves the handle's turn to chance: it lands where the scan saw free space, and the
+  // model is rejected or loses to a glass.
+  int roll_steps = 6;
+  double roll_min_class_probability = 0.15;
+  double roll_min_asymmetry = 0.02;
   // A cluster no hypothesis explains is split along its concave seams
   // (recogniser/convex_segmentation.h) and its split_segments largest segments are
   // recognised alone (0: never): touching objects clustered together, whose mixed
@@ -201,6 +218,9 @@ class SceneRecogniser {
   // statically stable facets of the convex hull of ModelSurface(model, leaf) for the
   // hull's centroid (core/convex_hull.h); empty when the hull is degenerate. Built once.
   const std::vector<Eigen::Vector3d>& RestingNormals(int model, double leaf) const;
+  // The model's axis of near rotational symmetry (FindNearSymmetryAxis on
+  // ModelSurface(model, leaf), tolerance 1.5 leaves). Built once.
+  const NearSymmetryAxis& SymmetryAxis(int model, double leaf) const;
 
  private:
   struct Cache;

@@ -268,6 +268,26 @@ TEST_F(SceneRecognitionTest, UnseenInstancesPassAtClassLevelAndClutterDoesNot) {
   }
 }
 
+// A database (preset "sope", 80 views per model) of procedural instances, `instances`
+// giving each class and its seeds (model names CLASS_SEED), written into `scratch`.
+std::unique_ptr<Database> ProceduralDatabase(
+    const testing::ScratchDir& scratch,
+    const std::vector<std::pair<ObjectClass, std::vector<int>>>& instances) {
+  const std::string models = scratch.File("models");
+  for (const auto& [object_class, seeds] : instances) {
+    const std::string name = ToString(object_class);
+    fs::create_directories(models + "/" + name);
+    for (const int seed : seeds) {
+      WriteMesh(models + "/" + name + "/" + name + "_" + std::to_string(seed) + ".obj",
+                MakeObject(object_class, seed));
+    }
+  }
+  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
+  db_options.views_per_model = 80;
+  WriteDatabase(scratch.File("procedural.sopedb"), BuildDatabase(models, db_options));
+  return Database::Open(scratch.File("procedural.sopedb"));
+}
+
 // Sibling hypotheses (SceneRecognitionOptions::sibling_hypotheses): the database holds
 // procedural bowls 0, 1, 5 and 12 and mug 0; on the table stand two unseen bowls, 1192
 // (12.4 cm wide, 5.3 cm high: bowl 1's size) and 1019 (16.7 × 7.6 cm: nearest bowl 12),
@@ -276,19 +296,9 @@ TEST_F(SceneRecognitionTest, UnseenInstancesPassAtClassLevelAndClutterDoesNot) {
 // recogniser, posing its first-ranked model only, gives bowl 1192 as bowl_5, 8.7 mm off,
 // which passes the instance-level tests; the comparison is printed.)
 TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSize) {
-  testing::ScratchDir scratch;
-  const std::string models = scratch.File("models");
-  fs::create_directories(models + "/bowl");
-  fs::create_directories(models + "/mug");
-  for (const int seed : {0, 1, 5, 12}) {
-    WriteMesh(models + "/bowl/bowl_" + std::to_string(seed) + ".obj",
-              MakeObject(ObjectClass::kBowl, seed));
-  }
-  WriteMesh(models + "/mug/mug_0.obj", MakeObject(ObjectClass::kMug, 0));
-  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
-  db_options.views_per_model = 80;
-  WriteDatabase(scratch.File("bowls.sopedb"), BuildDatabase(models, db_options));
-  const std::unique_ptr<Database> db = Database::Open(scratch.File("bowls.sopedb"));
+  const testing::ScratchDir scratch;
+  const std::unique_ptr<Database> db = ProceduralDatabase(
+      scratch, {{ObjectClass::kBowl, {0, 1, 5, 12}}, {ObjectClass::kMug, {0}}});
 
   const TableFrame frame;
   Scene scene;
@@ -348,25 +358,73 @@ TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSi
   }
 }
 
+// Class evidence in the selection (SceneRecognitionOptions::class_weight): the database
+// holds mugs 2 and 8 and glasses 12 and 15; on the table lies an unseen mug (1186) on its
+// side, its handle turned up and to one side. The recogniser ranks the mug class first
+// (0.83), but glass 15, a little wider, explains a few more of the body's points than the
+// mug models do: by geometry alone (class_weight 0, printed for comparison) the mug is
+// reported as a glass. With the class evidence it must be a mug.
+TEST(SceneRecognitionClassEvidence, AMugOnItsSideIsNotTakenForAWiderGlass) {
+  const testing::ScratchDir scratch;
+  const std::unique_ptr<Database> db = ProceduralDatabase(
+      scratch, {{ObjectClass::kMug, {2, 8}}, {ObjectClass::kGlass, {12, 15}}});
+
+  const TableFrame frame;
+  Scene scene;
+  scene.objects.push_back(TableTop(frame));
+  // The mug's axis (model z) laid along the table, its handle (model +x) turned 60° up
+  // from the table, the whole turned 0.5 rad about the vertical; its lowest point on the
+  // table.
+  const TriangleMesh mug = MakeObject(ObjectClass::kMug, 1186);
+  const Eigen::Matrix3d lying = Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitZ()).matrix() *
+                                Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitX()).matrix() *
+                                Eigen::AngleAxisd(M_PI / 3, Eigen::Vector3d::UnitZ()).matrix();
+  double lowest = std::numeric_limits<double>::infinity();
+  for (const Eigen::Vector3f& v : mug.vertices) lowest = std::min(lowest, (lying * v.cast<double>()).z());
+  Rigid3d mug_pose = frame.Pose(0.06, 0.02, 0.0);
+  mug_pose.rotation = frame.cam_from_world * lying;
+  mug_pose.translation += frame.cam_from_world * Eigen::Vector3d(0, 0, -lowest);
+  scene.objects.push_back({mug, mug_pose, 0.8, {}});
+  const PointCloud cloud = ScanScene(scene);
+  const SceneRecogniser recogniser(*db);
+  const auto found_near = [](const SceneRecognitionResult& result, const Eigen::Vector3d& centre,
+                             const TriangleMesh& mesh) -> const RecognisedObject* {
+    for (const RecognisedObject& o : result.objects) {
+      const Eigen::Vector3d c = o.best().cam_from_model * MakePoseTruthModel(mesh).center;
+      if ((c - centre).norm() < 0.04) return &o;
+    }
+    return nullptr;
+  };
+  const Eigen::Vector3d mug_centre = mug_pose * MakePoseTruthModel(mug).center;
+  SceneRecognitionOptions options;
+  for (const double weight : {0.0, options.class_weight}) {
+    options.class_weight = weight;
+    const SceneRecognitionResult result = recogniser.Recognise(cloud, options);
+    std::printf("class weight %.2f:\n%s\n", weight, SceneBriefReport(result).c_str());
+    if (weight == 0.0) continue;  // shown for comparison only
+    const RecognisedObject* found_mug = found_near(result, mug_centre, mug);
+    ASSERT_NE(found_mug, nullptr) << "the mug was not found";
+    EXPECT_EQ(found_mug->best().class_name, "mug");
+    // The handle leaves the wall along the model's +x axis in every procedural mug. Printed:
+    // the database mug's handle, another shape than the unseen one's, explains few points.
+    const Eigen::Vector3d true_handle = mug_pose.rotation.col(0);
+    const Eigen::Vector3d found_handle = found_mug->best().cam_from_model.rotation.col(0);
+    std::printf("mug found as %s, handle %.1f° off\n", found_mug->best().model_name.c_str(),
+                std::acos(std::clamp(true_handle.dot(found_handle), -1.0, 1.0)) * 180 / M_PI);
+  }
+}
+
 // Scaled hypotheses (SceneRecognitionOptions::max_scale): the database holds two boxes
 // (procedural 3 and 10) and a mug; on the table stands a box of other proportions — box 3
 // 1.4× as deep and 0.8× as high — and the mug. The box must be found as a box whose scaled dimensions
 // are the new box's (within 10%), its centre within 5 mm; the mug as the mug. (Without
 // scaling the database box explains a part of the new one only: printed for comparison.)
 TEST(SceneRecognitionScaled, ABoxOfOtherProportionsIsFoundWithItsScale) {
-  testing::ScratchDir scratch;
-  const std::string models = scratch.File("models");
-  fs::create_directories(models + "/box");
-  fs::create_directories(models + "/mug");
+  const testing::ScratchDir scratch;
+  const std::unique_ptr<Database> db = ProceduralDatabase(
+      scratch, {{ObjectClass::kBox, {3, 10}}, {ObjectClass::kMug, {0}}});
   const TriangleMesh box = MakeObject(ObjectClass::kBox, 3);
   const TriangleMesh other_box = MakeObject(ObjectClass::kBox, 10);
-  WriteMesh(models + "/box/box_3.obj", box);
-  WriteMesh(models + "/box/box_10.obj", other_box);
-  WriteMesh(models + "/mug/mug_0.obj", MakeObject(ObjectClass::kMug, 0));
-  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
-  db_options.views_per_model = 80;
-  WriteDatabase(scratch.File("box.sopedb"), BuildDatabase(models, db_options));
-  const std::unique_ptr<Database> db = Database::Open(scratch.File("box.sopedb"));
 
   const Eigen::Vector3f true_scale(1.0f, 1.4f, 0.8f);
   TriangleMesh unseen = box;
