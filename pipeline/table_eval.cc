@@ -123,6 +123,7 @@ void CountScene(const ScanReport& report, TableEvalSummary* summary) {
     if (truth.visible_fraction >= 0.5) {
       ++summary->visible_known;
       summary->visible_correct += m.correct;
+      summary->visible_class_correct += m.class_correct;
     }
     if (m.pose_error) {
       summary->rotation_errors_deg.push_back(m.pose_error->rotation_error_deg);
@@ -139,6 +140,7 @@ void FinishSummary(const std::vector<std::vector<double>>& stage_ms, TableEvalSu
   summary->class_recall = Ratio(summary->class_correct, summary->known);
   summary->rejection = Ratio(summary->clutter_rejected, summary->clutter);
   summary->visible_recall = Ratio(summary->visible_correct, summary->visible_known);
+  summary->visible_class_recall = Ratio(summary->visible_class_correct, summary->visible_known);
   if (!summary->rotation_errors_deg.empty()) {
     summary->median_rotation_deg = Median(summary->rotation_errors_deg);
     summary->median_center_m = Median(summary->center_errors_m);
@@ -181,6 +183,19 @@ TableEvalSummary RunTableEvaluation(const Database& database, const TableEvalOpt
                                     const std::function<void(int, int)>& progress) {
   options.Check();
   const ScanAndRecogniseOptions controller_options = SceneControllerOptions(options, out_dir);
+  // The scans' JSON lines are appended (the controller's contract); the report is rewritten.
+  // So that they describe the same run, an earlier run's lines are kept aside, not mixed in.
+  if (!controller_options.out_dir.empty()) {
+    const std::filesystem::path lines = JoinPath(controller_options.out_dir, "results.jsonl");
+    std::error_code error;
+    if (std::filesystem::exists(lines, error)) {
+      const std::filesystem::path kept = JoinPath(controller_options.out_dir, "results.previous.jsonl");
+      std::filesystem::rename(lines, kept, error);
+      SOPE_CHECK(!error, "table evaluation: cannot move the earlier run's {} aside: {}",
+                 lines.string(), error.message());
+      spdlog::info("the earlier run's scan lines are now {}", kept.string());
+    }
+  }
   TableEvalSummary summary;
   summary.stage_names = {"decode", "triangulate", "segment", "recognise", "frame_to_result"};
   summary.patterns = DescribePatterns(SceneSourceOptions(options, 0).patterns);
@@ -231,6 +246,8 @@ std::string TableEvalSummary::Markdown() const {
                     known);
   md += fmt::format("| recall, objects ≥ 50% visible | {:.1f}% ({}/{}) |\n", 100 * visible_recall,
                     visible_correct, visible_known);
+  md += fmt::format("| class recall, objects ≥ 50% visible | {:.1f}% ({}/{}) |\n",
+                    100 * visible_class_recall, visible_class_correct, visible_known);
   md += fmt::format("| unknown clutter rejected | {:.1f}% ({}/{}) |\n", 100 * rejection,
                     clutter_rejected, clutter);
   md += fmt::format("| median rotation error (mod symmetry), class-correct | {:.2f}° (n = {}) |\n",
@@ -258,6 +275,7 @@ std::string TableEvalSummary::Json() const {
                       {"precision", precision},
                       {"class_recall", class_recall},
                       {"visible_recall", visible_recall},
+                      {"visible_class_recall", visible_class_recall},
                       {"rejection", rejection},
                       {"median_rotation_error_deg", median_rotation_deg},
                       {"median_center_error_m", median_center_m}};

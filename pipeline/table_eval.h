@@ -45,8 +45,10 @@ struct TableEvalSummary {
   int skipped_scenes = 0;  // procedural scenes whose objects could not all be placed
   int known = 0, detections = 0, correct = 0, class_correct = 0;
   int clutter = 0, clutter_rejected = 0;
-  int visible_known = 0, visible_correct = 0;  // known objects ≥ 50% visible
-  double recall = 0, precision = 0, class_recall = 0, rejection = 0, visible_recall = 0;
+  // Known objects ≥ 50% visible, those detected right, those of the right class.
+  int visible_known = 0, visible_correct = 0, visible_class_correct = 0;
+  double recall = 0, precision = 0, class_recall = 0, rejection = 0, visible_recall = 0,
+         visible_class_recall = 0;
   std::vector<double> rotation_errors_deg, center_errors_m;  // class-correct matches
   double median_rotation_deg = 0, median_center_m = 0;
   // Per stage: median and 95th percentile, ms.
