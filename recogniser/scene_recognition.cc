@@ -87,6 +87,26 @@ struct Hypothesis {
   Eigen::Vector3d scale = Eigen::Vector3d::Ones();
 };
 
+// The recogniser names the runner-up class when it comes within `margin` of its first; the
+// scene may accept another class than the first. The doubt is then about the accepted
+// class: the most probable other class, named when its probability is at least the
+// accepted class's less `margin` (always, when the accepted class was not ranked first).
+// Empty when nothing comes that near, or without class ranking.
+std::string AmbiguousWith(const RecognitionResult& recognition, double margin) {
+  const Suggestion& accepted = recognition.suggestions[0];
+  double accepted_probability = 0.0;
+  const ClassScore* other = nullptr;
+  for (const ClassScore& c : recognition.classes) {
+    if (c.class_index == accepted.class_index) {
+      accepted_probability = c.probability;
+    } else if (other == nullptr || c.probability > other->probability) {
+      other = &c;
+    }
+  }
+  if (other == nullptr || other->probability < accepted_probability - margin) return {};
+  return other->class_name;
+}
+
 // Height of the model's surface centroid above the plane over the model's diameter (the
 // stability prior: lower is more stable).
 double CentreOfMassHeight(const PointCloud& surface, const Rigid3d& cam_from_model,
@@ -1115,6 +1135,8 @@ std::vector<RecognisedObject> AssembleObjects(const SceneContext& ctx, Hypothesi
     RecognisedObject object;
     object.recognition = std::move(hypotheses[h].recognition);
     object.recognition.recognised = true;
+    object.recognition.ambiguous_with =
+        AmbiguousWith(object.recognition, ctx.options.recognition.assembly.ambiguity_margin);
     object.cluster = hypotheses[h].cluster;
     object.snap_m = hypotheses[h].snap;
     object.scale = hypotheses[h].scale;
