@@ -5,10 +5,10 @@
 #include <cmath>
 #include <deque>
 #include <limits>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <optional>
-#include <functional>
 #include <set>
 #include <unordered_map>
 
@@ -418,6 +418,22 @@ IcpResult RefineOnCluster(const SceneContext& ctx, const PoseQuery& query,
   return icp;
 }
 
+// Scores `h`'s front suggestion (its model at `canonical_from_model` on the cluster's pose
+// `query`) as the recogniser scores a pose: against the model's database view nearest that
+// pose, which becomes the suggestion's view.
+void ScoreOnCluster(const SceneContext& ctx, const PoseQuery& query,
+                    const Rigid3d& canonical_from_model, Hypothesis* h) {
+  const Database& db = ctx.database;
+  Suggestion& front = h->recognition.suggestions[0];
+  front.view = NearestModelView(db, front.model, canonical_from_model);
+  front.viewpoint = db.view(front.view).viewpoint;
+  const PointCloud view_cloud = db.ViewCloud(front.view);
+  front.alignment = ScoreAlignment(view_cloud.points, view_cloud.normals,
+                                   db.view(front.view).cloud_spacing, query, canonical_from_model,
+                                   ctx.options.recognition.pose);
+  front.score = front.alignment.score;
+}
+
 // Twins of a cluster nothing explained: each of its first hypotheses turned half a turn
 // about each principal axis of its model (through the model's centre) — the poses a
 // view-based search confuses most (a drill on its side seen from its other side, a box
@@ -562,11 +578,15 @@ bool AddRolledOf(const SceneContext& ctx, const RecognitionResult& recognition, 
       const Rigid3d model_turn(turn, axis.point - turn * axis.point);
       Hypothesis rolled = source;
       rolled.rolled = true;
-      RefineOnCluster(ctx, *query, surface, canonical_from_cam * s->cam_from_model * model_turn,
-                      &rolled);
+      const Rigid3d canonical_from_model =
+          RefineOnCluster(ctx, *query, surface,
+                          canonical_from_cam * s->cam_from_model * model_turn, &rolled)
+              .canonical_from_model;
+      ScoreOnCluster(ctx, *query, canonical_from_model, &rolled);
       if (on_table && !PutOnTable(ctx, &rolled)) continue;
-      spdlog::debug("cluster {}: {} turned {}° about its axis", cluster, s->model_name,
-                    360 * k / options.roll_steps);
+      spdlog::debug("cluster {}: {} turned {}° about its axis, score {:.3f}", cluster,
+                    s->model_name, 360 * k / options.roll_steps,
+                    rolled.recognition.suggestions[0].score);
       pool->hypotheses.push_back(std::move(rolled));
       added = true;
     }
@@ -793,13 +813,7 @@ bool AddSiblingsOf(const SceneContext& ctx, const Hypothesis& h,
     const Rigid3d canonical_from_model =
         RefineOnCluster(ctx, *query, surface, canonical_from_cam * s.cam_from_model, &sibling)
             .canonical_from_model;
-    front.view = NearestModelView(db, m, canonical_from_model);
-    front.viewpoint = db.view(front.view).viewpoint;
-    const PointCloud view_cloud = db.ViewCloud(front.view);
-    front.alignment = ScoreAlignment(view_cloud.points, view_cloud.normals,
-                                     db.view(front.view).cloud_spacing, *query,
-                                     canonical_from_model, ctx.options.recognition.pose);
-    front.score = front.alignment.score;
+    ScoreOnCluster(ctx, *query, canonical_from_model, &sibling);
     if (on_table && !PutOnTable(ctx, &sibling)) continue;
     spdlog::debug("cluster {}: sibling {} of {} (size distance {:.3f} m), score {:.3f}",
                   h.cluster, model.name, s.model_name, distance, front.score);
