@@ -9,6 +9,7 @@
 #include <Eigen/Geometry>
 
 #include "recogniser/features.h"
+#include "recogniser/voxel_key.h"
 
 namespace sope {
 namespace {
@@ -49,10 +50,7 @@ class OccupancyGrid {
   Eigen::Vector3i Cell(const Eigen::Vector3d& p) const {
     return (p * inv_cell_).array().floor().cast<int>();
   }
-  static uint64_t Key(const Eigen::Vector3i& c) {
-    return (static_cast<uint64_t>(c.x() + (1 << 20)) << 42) ^
-           (static_cast<uint64_t>(c.y() + (1 << 20)) << 21) ^ static_cast<uint64_t>(c.z() + (1 << 20));
-  }
+  static uint64_t Key(const Eigen::Vector3i& c) { return PackVoxelKey(c.x(), c.y(), c.z()); }
   double inv_cell_;
   std::unordered_set<uint64_t> cells_;
 };

@@ -25,20 +25,20 @@
 #include "recogniser/pose.h"
 #include "recogniser/preprocess.h"
 #include "recogniser/stages.h"
+#include "recogniser/voxel_key.h"
 
 namespace sope {
 namespace {
 
-// The integer coordinates of the cell of `p` (cells 1 / inv_leaf wide), offset to be
-// non-negative, and their packed key.
+// The integer coordinates of the cell of `p` (cells 1 / inv_leaf wide), and their packed
+// key (recogniser/voxel_key.h).
 Eigen::Matrix<int64_t, 3, 1> VoxelCoords(const Eigen::Vector3f& p, float inv_leaf) {
-  return {static_cast<int64_t>(std::floor(p.x() * inv_leaf)) + (1 << 20),
-          static_cast<int64_t>(std::floor(p.y() * inv_leaf)) + (1 << 20),
-          static_cast<int64_t>(std::floor(p.z() * inv_leaf)) + (1 << 20)};
+  return {static_cast<int64_t>(std::floor(p.x() * inv_leaf)),
+          static_cast<int64_t>(std::floor(p.y() * inv_leaf)),
+          static_cast<int64_t>(std::floor(p.z() * inv_leaf))};
 }
 uint64_t PackVoxel(const Eigen::Matrix<int64_t, 3, 1>& c) {
-  return (static_cast<uint64_t>(c.x()) << 42) ^ (static_cast<uint64_t>(c.y()) << 21) ^
-         static_cast<uint64_t>(c.z());
+  return PackVoxelKey(c.x(), c.y(), c.z());
 }
 uint64_t VoxelKey(const Eigen::Vector3f& p, float inv_leaf) {
   return PackVoxel(VoxelCoords(p, inv_leaf));

@@ -15,6 +15,7 @@
 #include "core/error.h"
 #include "core/stopwatch.h"
 #include "recogniser/pcl_convert.h"
+#include "recogniser/voxel_key.h"
 
 namespace sope {
 namespace {
@@ -54,10 +55,6 @@ std::vector<std::vector<int>> GridEuclideanClusters(const std::vector<Eigen::Vec
   const size_t n = points.size();
   const float inv_cell = static_cast<float>(1.0 / tolerance);
   const float tolerance2 = static_cast<float>(tolerance * tolerance);
-  auto cell_key = [](int64_t x, int64_t y, int64_t z) {
-    return (static_cast<uint64_t>(x + (1 << 20)) << 42) ^
-           (static_cast<uint64_t>(y + (1 << 20)) << 21) ^ static_cast<uint64_t>(z + (1 << 20));
-  };
   std::vector<Eigen::Vector3i> cell_of(n);
   std::vector<std::pair<uint64_t, int>> keyed(n);
   for (size_t i = 0; i < n; ++i) {
@@ -65,7 +62,7 @@ std::vector<std::vector<int>> GridEuclideanClusters(const std::vector<Eigen::Vec
     cell_of[i] = Eigen::Vector3i(static_cast<int>(std::floor(c.x())),
                                  static_cast<int>(std::floor(c.y())),
                                  static_cast<int>(std::floor(c.z())));
-    keyed[i] = {cell_key(cell_of[i].x(), cell_of[i].y(), cell_of[i].z()), static_cast<int>(i)};
+    keyed[i] = {PackVoxelKey(cell_of[i].x(), cell_of[i].y(), cell_of[i].z()), static_cast<int>(i)};
   }
   std::sort(keyed.begin(), keyed.end());
   std::unordered_map<uint64_t, std::pair<int, int>> cells;  // key → range in `keyed`
@@ -90,7 +87,7 @@ std::vector<std::vector<int>> GridEuclideanClusters(const std::vector<Eigen::Vec
     for (int dz = -1; dz <= 1; ++dz) {
       for (int dy = -1; dy <= 1; ++dy) {
         for (int dx = -1; dx <= 1; ++dx) {
-          const auto it = cells.find(cell_key(c.x() + dx, c.y() + dy, c.z() + dz));
+          const auto it = cells.find(PackVoxelKey(c.x() + dx, c.y() + dy, c.z() + dz));
           if (it == cells.end()) continue;
           for (int k = it->second.first; k < it->second.second; ++k) {
             const int j = keyed[k].second;
@@ -302,11 +299,9 @@ VoxelGrid ThinToVoxels(const PointCloud& cloud, const std::vector<int>& indices,
   std::vector<int> voxel_count;
   for (size_t k = 0; k < indices.size(); ++k) {
     const Eigen::Vector3f& p = cloud.points[indices[k]];
-    const auto cx = static_cast<int64_t>(std::floor(p.x() * inv_leaf)) + (1 << 20);
-    const auto cy = static_cast<int64_t>(std::floor(p.y() * inv_leaf)) + (1 << 20);
-    const auto cz = static_cast<int64_t>(std::floor(p.z() * inv_leaf)) + (1 << 20);
-    const uint64_t key = (static_cast<uint64_t>(cx) << 42) ^ (static_cast<uint64_t>(cy) << 21) ^
-                         static_cast<uint64_t>(cz);
+    const uint64_t key = PackVoxelKey(static_cast<int64_t>(std::floor(p.x() * inv_leaf)),
+                                      static_cast<int64_t>(std::floor(p.y() * inv_leaf)),
+                                      static_cast<int64_t>(std::floor(p.z() * inv_leaf)));
     auto [it, inserted] = voxel_of_key.emplace(key, static_cast<int>(voxel_sum.size()));
     if (inserted) {
       voxel_sum.emplace_back(Eigen::Vector3d::Zero());
