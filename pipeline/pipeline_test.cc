@@ -312,6 +312,78 @@ TEST_F(Pipeline, RecordedFrameSetsReplayThroughTheController) {
   ExpectErrorNaming([&] { frames.Next(2); }, "frame set 2 of 2");
 }
 
+// Joins across a gap the camera did not see through (SceneRecognitionOptions::join_gap),
+// on scene 11 of the procedural tabletop evaluation with seed 601 (`sope eval --table
+// --procedural --seed 601`): two unseen wine glasses (1165, 1914) lie on their sides by a
+// box. Their stems are too thin to scan, so each comes out as two clusters, foot and bowl,
+// several centimetres apart, and a bowl alone looks like a mug or a glass lying down. The
+// database holds other instances: wine glasses 0, 3 and 12, mugs 2, 8 and 11, glasses 2,
+// 12 and 15, cans 1 and 5, boxes 0 and 1. Without the joins (join_gap 0) glass 1914's bowl
+// is taken for a mug and its foot is left unknown; joined (nothing seen through the gap)
+// it must be found as a wine glass, its centre within 3 cm. (Glass 1165, whose bowl and
+// foot both come out as unknown objects, is found neither way: printed.)
+TEST(TableJoins, WineGlassesOnTheirSidesCutInTwoByTheirUnscannedStems) {
+  const testing::ScratchDir scratch;
+  const std::string models = scratch.File("models");
+  const std::vector<std::pair<ObjectClass, std::vector<int>>> instances = {
+      {ObjectClass::kWineGlass, {0, 3, 12}}, {ObjectClass::kMug, {2, 8, 11}},
+      {ObjectClass::kGlass, {2, 12, 15}},      {ObjectClass::kCan, {1, 5}},
+      {ObjectClass::kBox, {0, 1}}};
+  for (const auto& [object_class, seeds] : instances) {
+    const std::string name = ToString(object_class);
+    std::filesystem::create_directories(models + "/" + name);
+    for (const int seed : seeds) {
+      WriteMesh(models + "/" + name + "/" + name + "_" + std::to_string(seed) + ".obj",
+                MakeObject(object_class, seed));
+    }
+  }
+  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
+  db_options.views_per_model = 80;
+  WriteDatabase(scratch.File("db.sopedb"), BuildDatabase(models, db_options));
+  const std::unique_ptr<Database> db = Database::Open(scratch.File("db.sopedb"));
+
+  // The evaluation's source: every procedural class, one clutter object, seed 601.
+  VirtualTableSourceOptions source_options;
+  source_options.calibration = DefaultRigCalibration();
+  source_options.patterns.projector_width = source_options.calibration.projector.width;
+  source_options.patterns.projector_height = source_options.calibration.projector.height;
+  source_options.table.clutter = 1;
+  source_options.seed = 601;
+  // In the order of the default database's classes (by name), as the evaluation draws them.
+  source_options.classes = AllObjectClasses();
+  std::sort(source_options.classes.begin(), source_options.classes.end(),
+            [](ObjectClass a, ObjectClass b) { return ToString(a) < ToString(b); });
+  VirtualTableSource source(source_options);
+  const SourceScan scan = source.Next(11);
+  ASSERT_TRUE(scan.truth.has_value());
+  const PointCloud cloud = ScanFrameSet(scan.frames, scan.calibration).triangulation.cloud;
+  std::vector<const ScanObjectTruth*> glasses;
+  for (const ScanObjectTruth& o : scan.truth->objects) {
+    if (o.class_name == "wine_glass") glasses.push_back(&o);
+  }
+  ASSERT_EQ(glasses.size(), 2u) << "scene 11 of seed 601 is not the one described";
+
+  const SceneRecogniser recogniser(*db);
+  SceneRecognitionOptions options;
+  for (const double gap : {0.0, options.join_gap}) {
+    options.join_gap = gap;
+    const SceneRecognitionResult result = recogniser.Recognise(cloud, options);
+    std::printf("join gap %.2f m: %zu clusters\n%s\n", gap, result.segmentation.clusters.size(),
+                SceneBriefReport(result).c_str());
+    for (const ScanObjectTruth* glass : glasses) {
+      const Eigen::Vector3d centre = glass->cam_from_model * MakePoseTruthModel(glass->mesh).center;
+      bool named = false;
+      for (const RecognisedObject& o : result.objects) {
+        const Eigen::Vector3d c = o.best().cam_from_model * db->model(o.best().model).center;
+        named |= (c - centre).norm() < 0.03 && o.best().class_name == "wine_glass";
+      }
+      std::printf("  wine glass %llu: %s\n", static_cast<unsigned long long>(glass->instance_seed),
+                  named ? "found" : "not found");
+      if (glass->instance_seed == 1914) EXPECT_EQ(named, gap > 0);
+    }
+  }
+}
+
 TEST(PipelineOptions, BadValuesAreNamed) {
   ScanAndRecogniseOptions options;
   options.max_scans = 0;

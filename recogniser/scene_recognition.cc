@@ -7,6 +7,7 @@
 #include <limits>
 #include <functional>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <set>
@@ -538,6 +539,142 @@ std::vector<std::pair<int, int>> NeighbouringLabels(const ThinnedScene& scene,
   return pairs;
 }
 
+// Where the camera saw the scene: per cell of the normalised image plane (x/z, y/z; cells
+// `cell` wide) the least depth of the cloud's points in it (∞ where it saw nothing: no
+// decoded pixel, a shadow or a part too thin to scan).
+class SightGrid {
+ public:
+  SightGrid(const PointCloud& cloud, float cell) : inv_cell_(1.0f / cell) {
+    float u_min = std::numeric_limits<float>::max(), v_min = u_min, u_max = -u_min, v_max = -u_min;
+    for (const Eigen::Vector3f& p : cloud.points) {
+      if (!(p.z() > 0.0f)) continue;
+      const float u = p.x() / p.z(), v = p.y() / p.z();
+      u_min = std::min(u_min, u), u_max = std::max(u_max, u);
+      v_min = std::min(v_min, v), v_max = std::max(v_max, v);
+    }
+    if (!(u_max >= u_min) || !(v_max >= v_min)) return;
+    // At most kMaxCells cells (coarser cells for a very wide cloud).
+    constexpr int64_t kMaxCells = 1 << 22;
+    while ((static_cast<int64_t>((u_max - u_min) * inv_cell_) + 1) *
+               (static_cast<int64_t>((v_max - v_min) * inv_cell_) + 1) >
+           kMaxCells) {
+      inv_cell_ *= 0.5f;
+    }
+    u0_ = u_min, v0_ = v_min;
+    width_ = static_cast<int>((u_max - u_min) * inv_cell_) + 1;
+    height_ = static_cast<int>((v_max - v_min) * inv_cell_) + 1;
+    depth_.assign(static_cast<size_t>(width_) * height_, std::numeric_limits<float>::infinity());
+    for (const Eigen::Vector3f& p : cloud.points) {
+      const int k = CellOf(p);
+      if (k >= 0) depth_[k] = std::min(depth_[k], p.z());
+    }
+  }
+  // The least depth seen in the cell `point` projects to (∞: nothing seen there or outside).
+  float SeenDepth(const Eigen::Vector3f& point) const {
+    const int k = CellOf(point);
+    return k < 0 ? std::numeric_limits<float>::infinity() : depth_[k];
+  }
+
+ private:
+  int CellOf(const Eigen::Vector3f& p) const {
+    if (!(p.z() > 0.0f) || width_ == 0) return -1;
+    const float x = (p.x() / p.z() - u0_) * inv_cell_, y = (p.y() / p.z() - v0_) * inv_cell_;
+    if (!(x >= 0.0f && y >= 0.0f && x < width_ && y < height_)) return -1;
+    return static_cast<int>(y) * width_ + static_cast<int>(x);
+  }
+  float inv_cell_;
+  float u0_ = 0.0f, v0_ = 0.0f;
+  int width_ = 0, height_ = 0;
+  std::vector<float> depth_;
+};
+
+// Pairs of labels (a < b, as NeighbouringLabels) whose thinned points come within
+// join_gap of each other but not within join_distance, that one object could span
+// (no two of their points farther apart than max_scale × the largest model's diameter), and across whose
+// gap the camera did not see: along the segment between their nearest points (on a grid
+// of 3 scene leaves) at most join_max_seen of the samples have the cloud's nearest point
+// in their line of sight more than a scene leaf behind them. Two objects apart on the
+// table show the table through the gap; the parts of one object that a shadow or a part
+// too thin to scan (a wine glass's stem, a bottle's shoulder at a grazing angle) cut
+// apart show nothing there.
+std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
+                                                 const std::vector<int>& label, int num_labels,
+                                                 double max_diameter) {
+  const SceneRecognitionOptions& options = ctx.options;
+  const ThinnedScene& scene = ctx.scene;
+  if (options.join_gap <= options.join_distance || num_labels < 2) return {};
+  // Each label's points on a coarse grid (the first per cell) and bounding box.
+  const float coarse = static_cast<float>(3.0 * options.scene_leaf);
+  std::vector<std::vector<Eigen::Vector3f>> sample(num_labels);
+  std::vector<Eigen::AlignedBox3f> box(num_labels);
+  std::unordered_map<uint64_t, uint8_t> taken;
+  for (size_t j = 0; j < scene.points.size(); ++j) {
+    const int l = label[j];
+    if (l < 0) continue;
+    const Eigen::Vector3f& p = scene.points.points[j];
+    box[l].extend(p);
+    const uint64_t key = VoxelKey(p, 1.0f / coarse) * 1000003u + static_cast<uint64_t>(l);
+    if (taken.emplace(key, 0).second) sample[l].push_back(p);
+  }
+  const float gap2 = static_cast<float>(options.join_gap * options.join_gap);
+  const float near2 = static_cast<float>(options.join_distance * options.join_distance);
+  std::unique_ptr<SightGrid> sight;
+  std::vector<std::pair<int, int>> pairs;
+  for (int a = 0; a < num_labels; ++a) {
+    if (sample[a].empty()) continue;
+    for (int b = a + 1; b < num_labels; ++b) {
+      if (sample[b].empty()) continue;
+      if (box[a].exteriorDistance(box[b]) > options.join_gap) continue;
+      float best = std::numeric_limits<float>::max();
+      Eigen::Vector3f pa, pb;
+      for (const Eigen::Vector3f& p : sample[a]) {
+        for (const Eigen::Vector3f& q : sample[b]) {
+          const float d2 = (p - q).squaredNorm();
+          if (d2 < best) best = d2, pa = p, pb = q;
+        }
+      }
+      // Nearer than join_distance: NeighbouringLabels pairs them (the coarse sample may
+      // miss the nearest points by up to a cell: a pair that near is left to it).
+      if (best > gap2 || best <= near2) continue;
+      // Both within one model's reach: the largest distance between their points.
+      const std::vector<Eigen::Vector3f>* parts[2] = {&sample[a], &sample[b]};
+      float extent2 = 0.0f;
+      for (int i = 0; i < 2; ++i) {
+        for (size_t k = 0; k < parts[i]->size(); ++k) {
+          for (int j = i; j < 2; ++j) {
+            for (size_t m = i == j ? k + 1 : 0; m < parts[j]->size(); ++m) {
+              extent2 = std::max(extent2, ((*parts[i])[k] - (*parts[j])[m]).squaredNorm());
+            }
+          }
+        }
+      }
+      if (std::sqrt(extent2) > std::max(1.0, options.max_scale) * max_diameter) continue;
+      if (!sight) {
+        double depth = 0.0;
+        for (const Eigen::Vector3f& p : scene.points.points) depth += p.z();
+        depth /= static_cast<double>(scene.points.size());
+        sight = std::make_unique<SightGrid>(
+            ctx.cloud, static_cast<float>(0.5 * options.scene_leaf / std::max(depth, 1e-3)));
+      }
+      const float length = std::sqrt(best);
+      const int steps = static_cast<int>(length / options.scene_leaf);
+      int samples = 0, seen = 0;
+      for (int k = 1; k < steps; ++k) {
+        const float t = static_cast<float>(k) / steps;
+        const Eigen::Vector3f s = pa + t * (pb - pa);
+        ++samples;
+        seen += sight->SeenDepth(s) > s.z() + static_cast<float>(options.scene_leaf);
+      }
+      const bool unseen = samples == 0 || seen <= options.join_max_seen * samples;
+      spdlog::debug("labels {} and {}: {:.0f} mm apart, {} of {} samples of the gap seen "
+                    "through{}",
+                    a, b, 1e3 * length, seen, samples, unseen ? ": joined" : "");
+      if (unseen) pairs.emplace_back(a, b);
+    }
+  }
+  return pairs;
+}
+
 // The best posed suggestion of each class `recognition` (of `cluster`'s points, or of them
 // joined with a neighbour's) gives at least roll_min_class_probability, turned about its
 // model's axis of near symmetry (SceneRecognitionOptions::roll_steps) — in the pose the
@@ -634,8 +771,17 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     }
     return c;
   };
+  std::vector<std::pair<int, int>> pairs =
+      NeighbouringLabels(scene, label, num_labels, options.join_distance);
+  double max_diameter = 0.0;
+  for (int m = 0; m < ctx.database.num_models(); ++m) {
+    max_diameter = std::max(max_diameter, ctx.database.model(m).diameter);
+  }
+  for (const auto& pair : UnseenGapLabels(ctx, label, num_labels, max_diameter)) {
+    pairs.push_back(pair);
+  }
   bool added = false;
-  for (const auto& [a, b] : NeighbouringLabels(scene, label, num_labels, options.join_distance)) {
+  for (const auto& [a, b] : pairs) {
     if (a >= num_clusters) continue;  // two objects: nothing unexplained to join
     const int partner = b < num_clusters ? b : num_clusters + accepted[b - num_clusters];
     if (!pool->joined.emplace(a, partner).second) continue;  // joined in an earlier round
@@ -1291,6 +1437,9 @@ void SceneRecognitionOptions::Check() const {
              "scene recognition: second look rounds must be ≥ 0, got {}", second_look_rounds);
   SOPE_CHECK(join_distance >= 0, "scene recognition: join distance must be ≥ 0 m, got {}",
              join_distance);
+  SOPE_CHECK(join_gap >= 0, "scene recognition: join gap must be ≥ 0 m, got {}", join_gap);
+  SOPE_CHECK(join_max_seen >= 0 && join_max_seen <= 1,
+             "scene recognition: join max seen must be in [0, 1], got {}", join_max_seen);
   SOPE_CHECK(twin_hypotheses >= 0, "scene recognition: twin hypotheses must be ≥ 0, got {}",
              twin_hypotheses);
   SOPE_CHECK(std::isfinite(max_scale) && max_scale >= 0,

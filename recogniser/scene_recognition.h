@@ -111,6 +111,13 @@ struct SceneRecognitionOptions {
   // comes within join_distance of it (metres; 0: never): one object cut in two by a
   // shadow (a mug's handle apart from its body) or by another object in front of it.
   double join_distance = 0.025;
+  // Farther apart than join_distance but within join_gap (metres; ≤ join_distance: never),
+  // the two are joined too when the camera did not see through the gap between them (at
+  // most join_max_seen of the segment between their nearest points has a scene point
+  // behind it in its line of sight) and one model could span both: a wine glass whose
+  // stem was too thin to scan, a bottle whose shoulder the projector grazed.
+  double join_gap = 0.1;
+  double join_max_seen = 0.35;
   // Rounds of these second looks (remainders, twins, segments, joins), each round on the
   // scene verification of the one before, until a round adds nothing.
   int second_look_rounds = 2;
