@@ -625,6 +625,9 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
     for (int b = a + 1; b < num_labels; ++b) {
       if (sample[b].empty()) continue;
       if (box[a].exteriorDistance(box[b]) > options.join_gap) continue;
+      // The longest side of their joint box is a lower bound of their joint extent.
+      const double reach = std::max(1.0, options.max_scale) * max_diameter;
+      if (box[a].merged(box[b]).sizes().maxCoeff() > reach) continue;
       float best = std::numeric_limits<float>::max();
       Eigen::Vector3f pa, pb;
       for (const Eigen::Vector3f& p : sample[a]) {
@@ -648,7 +651,7 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
           }
         }
       }
-      if (std::sqrt(extent2) > std::max(1.0, options.max_scale) * max_diameter) continue;
+      if (std::sqrt(extent2) > reach) continue;
       if (!sight) {
         double depth = 0.0;
         for (const Eigen::Vector3f& p : scene.points.points) depth += p.z();
