@@ -155,9 +155,23 @@ ScanAndRecogniseController::ScanAndRecogniseController(const ScanAndRecogniseOpt
                                const cv::Mat& image) { live->OnFrame(manifest, index, image); });
 }
 
-ScanAndRecogniseController::~ScanAndRecogniseController() { source_->SetFrameSink({}); }
+ScanAndRecogniseController::~ScanAndRecogniseController() {
+  source_->SetFrameSink({});
+  stop_warm_up_ = true;
+  if (warm_up_.joinable()) warm_up_.join();
+}
 
 ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& progress) {
+  if (options_.tabletop && !warm_up_.joinable()) {
+    warm_up_ = std::thread([this] {
+      try {
+        scene_recogniser_.WarmUp(options_.scene, &stop_warm_up_);
+      } catch (const std::exception& e) {
+        // The recognition builds what it needs itself (and reports its own errors).
+        spdlog::debug("scene recogniser warm-up stopped: {}", e.what());
+      }
+    });
+  }
   SourceScan in = source_->Next(index, progress);
   CheckCalibrationMatchesFrames(in.calibration, in.frames.manifest, in.calibration_source);
   ScanReport report;

@@ -21,6 +21,7 @@
 #include <functional>
 #include <optional>
 #include <string>
+#include <thread>
 
 #include <opencv2/core/mat.hpp>
 
@@ -142,6 +143,11 @@ class ScanAndRecogniseController {
   // Decoding during the capture (sources that capture: the frame sink's IncrementalDecoder).
   struct LiveDecode;
   std::unique_ptr<LiveDecode> live_decode_;
+  // Tabletop: the scene recogniser's per-model caches built on another thread during the
+  // first capture (SceneRecogniser::WarmUp), so the first scan's results do not wait for
+  // them; stopped and joined on destruction.
+  std::thread warm_up_;
+  std::atomic<bool> stop_warm_up_{false};
 };
 
 // The DESIGN.md recognition result of the scan (empty recognition: no "class"…) plus

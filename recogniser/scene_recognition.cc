@@ -1469,63 +1469,87 @@ SceneRecogniser::SceneRecogniser(const Database& database)
     : database_(database), recogniser_(database), cache_(std::make_unique<Cache>()) {}
 SceneRecogniser::~SceneRecogniser() = default;
 
+// The cache's entry of `key` in `slots`, built by `build` when missing — outside the lock,
+// so that a warm-up on another thread holds up no recognition for longer than a look-up
+// (two threads may both build a missing entry; the first stored is kept).
+namespace {
+template <class T, class Build>
+const T& CachedEntry(std::mutex& mutex, std::map<std::pair<int, double>, std::unique_ptr<T>>& slots,
+                     const std::pair<int, double>& key, const Build& build) {
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    const auto it = slots.find(key);
+    if (it != slots.end()) return *it->second;
+  }
+  std::unique_ptr<T> built = build();
+  std::lock_guard<std::mutex> lock(mutex);
+  std::unique_ptr<T>& slot = slots[key];
+  if (!slot) slot = std::move(built);
+  return *slot;
+}
+}  // namespace
+
 const PointCloud& SceneRecogniser::ModelSurface(int model, double leaf) const {
   SOPE_CHECK(model >= 0 && model < database_.num_models(),
              "scene recognition: model {} out of range (database of {})", model,
              database_.num_models());
-  std::lock_guard<std::mutex> lock(cache_->mutex);
-  std::unique_ptr<PointCloud>& slot = cache_->surfaces[{model, leaf}];
-  if (slot) return *slot;
-  auto surface = std::make_unique<PointCloud>();
-  const ModelRecord& record = database_.model(model);
-  const float inv_leaf = static_cast<float>(1.0 / leaf);
-  std::unordered_map<uint64_t, int> voxel;
-  PointCloud view;
-  for (int v = record.first_view; v < record.first_view + record.num_views; ++v) {
-    database_.ViewCloud(v, &view);
-    for (size_t i = 0; i < view.size(); ++i) {
-      if (!voxel.emplace(VoxelKey(view.points[i], inv_leaf), 0).second) continue;
-      surface->points.push_back(view.points[i]);
-      surface->normals.push_back(view.HasNormals() ? view.normals[i]
-                                                   : Eigen::Vector3f::UnitZ().eval());
+  return CachedEntry(cache_->mutex, cache_->surfaces, {model, leaf}, [&] {
+    auto surface = std::make_unique<PointCloud>();
+    const ModelRecord& record = database_.model(model);
+    const float inv_leaf = static_cast<float>(1.0 / leaf);
+    std::unordered_map<uint64_t, int> voxel;
+    PointCloud view;
+    for (int v = record.first_view; v < record.first_view + record.num_views; ++v) {
+      database_.ViewCloud(v, &view);
+      for (size_t i = 0; i < view.size(); ++i) {
+        if (!voxel.emplace(VoxelKey(view.points[i], inv_leaf), 0).second) continue;
+        surface->points.push_back(view.points[i]);
+        surface->normals.push_back(view.HasNormals() ? view.normals[i]
+                                                     : Eigen::Vector3f::UnitZ().eval());
+      }
     }
-  }
-  slot = std::move(surface);
-  return *slot;
+    return surface;
+  });
 }
 
 const std::vector<Eigen::Vector3d>& SceneRecogniser::RestingNormals(int model,
                                                                     double leaf) const {
   const PointCloud& surface = ModelSurface(model, leaf);
-  std::lock_guard<std::mutex> lock(cache_->mutex);
-  std::unique_ptr<std::vector<Eigen::Vector3d>>& slot = cache_->resting[{model, leaf}];
-  if (slot) return *slot;
-  slot = std::make_unique<std::vector<Eigen::Vector3d>>();
-  std::vector<Eigen::Vector3d> points;
-  points.reserve(surface.size());
-  for (const Eigen::Vector3f& p : surface.points) points.push_back(p.cast<double>());
-  try {
-    const ConvexHull hull = ComputeConvexHull(points);
-    for (const RestingFace& face : StableFaces(hull, hull.centroid)) {
-      slot->push_back(hull.facets[face.facet].normal);
+  return CachedEntry(cache_->mutex, cache_->resting, {model, leaf}, [&] {
+    auto normals = std::make_unique<std::vector<Eigen::Vector3d>>();
+    std::vector<Eigen::Vector3d> points;
+    points.reserve(surface.size());
+    for (const Eigen::Vector3f& p : surface.points) points.push_back(p.cast<double>());
+    try {
+      const ConvexHull hull = ComputeConvexHull(points);
+      for (const RestingFace& face : StableFaces(hull, hull.centroid)) {
+        normals->push_back(hull.facets[face.facet].normal);
+      }
+    } catch (const Error& e) {
+      spdlog::debug("model {}: no resting faces ({})", database_.model(model).name, e.what());
     }
-  } catch (const Error& e) {
-    spdlog::debug("model {}: no resting faces ({})", database_.model(model).name, e.what());
-  }
-  return *slot;
+    return normals;
+  });
 }
 
 const NearSymmetryAxis& SceneRecogniser::SymmetryAxis(int model, double leaf) const {
   const PointCloud& surface = ModelSurface(model, leaf);
-  std::lock_guard<std::mutex> lock(cache_->mutex);
-  std::unique_ptr<NearSymmetryAxis>& slot = cache_->axes[{model, leaf}];
-  if (!slot) {
-    slot = std::make_unique<NearSymmetryAxis>(FindNearSymmetryAxis(surface.points, 1.5 * leaf));
+  return CachedEntry(cache_->mutex, cache_->axes, {model, leaf}, [&] {
+    auto axis = std::make_unique<NearSymmetryAxis>(FindNearSymmetryAxis(surface.points, 1.5 * leaf));
     spdlog::debug("model {}: {} axis of near symmetry (walls {:.2f}, turning moves {:.3f})",
-                  database_.model(model).name, slot->found ? "an" : "no", slot->wall_fraction,
-                  slot->asymmetric_fraction);
+                  database_.model(model).name, axis->found ? "an" : "no", axis->wall_fraction,
+                  axis->asymmetric_fraction);
+    return axis;
+  });
+}
+
+void SceneRecogniser::WarmUp(const SceneRecognitionOptions& options,
+                             const std::atomic<bool>* stop) const {
+  for (int m = 0; m < database_.num_models(); ++m) {
+    if (stop != nullptr && stop->load()) return;
+    RestingNormals(m, options.model_leaf);
+    if (options.roll_steps > 1) SymmetryAxis(m, options.model_leaf);
   }
-  return *slot;
 }
 
 SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,

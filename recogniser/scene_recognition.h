@@ -9,6 +9,7 @@
 // reported as unknown objects, not as their nearest model.
 #pragma once
 
+#include <atomic>
 #include <memory>
 #include <string>
 #include <vector>
@@ -231,6 +232,12 @@ class SceneRecogniser {
   // The model's axis of near rotational symmetry (FindNearSymmetryAxis on
   // ModelSurface(model, leaf), tolerance 1.5 leaves). Built once.
   const NearSymmetryAxis& SymmetryAxis(int model, double leaf) const;
+  // Builds the three above for every model at `options`' model leaf (what a first
+  // recognition would otherwise build for the models it meets), until `stop` is set. Safe
+  // on another thread while Recognise runs: the scan-and-recognise loop warms up during its
+  // first capture.
+  void WarmUp(const SceneRecognitionOptions& options,
+              const std::atomic<bool>* stop = nullptr) const;
 
  private:
   struct Cache;

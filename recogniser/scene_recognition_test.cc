@@ -15,6 +15,7 @@
 #include <functional>
 #include <limits>
 #include <memory>
+#include <thread>
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -520,6 +521,45 @@ TEST_F(SceneRecognitionTest, ModelsRestOnTheirBase) {
     }
     // Built once: the same vector on the second call.
     EXPECT_EQ(&normals, &recogniser.RestingNormals(m, options.model_leaf));
+  }
+}
+
+// SceneRecogniser::WarmUp on another thread while a scene is recognised (as the
+// scan-and-recognise loop warms up during its first capture): the same objects, models and
+// poses as a recogniser whose caches the recognition built itself, and afterwards every
+// model's caches built, equal to those built cold.
+TEST_F(SceneRecognitionTest, WarmingUpOnAnotherThreadChangesNoResult) {
+  const TableFrame frame;
+  Scene scene;
+  scene.objects.push_back(TableTop(frame));
+  scene.objects.push_back({MakeObject(ObjectClass::kMug, 0), frame.Pose(0.08, 0.03, 0.7), 0.8, {}});
+  scene.objects.push_back({MakeObject(ObjectClass::kBox, 0), frame.Pose(-0.1, -0.04, 0.3), 0.8, {}});
+  const PointCloud cloud = ScanScene(scene);
+  const SceneRecognitionOptions options;
+  const SceneRecogniser cold(*db_);
+  const SceneRecognitionResult expected = cold.Recognise(cloud, options);
+  ASSERT_EQ(expected.objects.size(), 2u) << SceneBriefReport(expected);
+
+  const SceneRecogniser warmed(*db_);
+  std::thread warm_up([&] { warmed.WarmUp(options); });
+  const SceneRecognitionResult result = warmed.Recognise(cloud, options);
+  warm_up.join();
+  ASSERT_EQ(result.objects.size(), expected.objects.size());
+  for (size_t i = 0; i < result.objects.size(); ++i) {
+    const Suggestion& a = result.objects[i].best();
+    const Suggestion& b = expected.objects[i].best();
+    EXPECT_EQ(a.model_name, b.model_name);
+    EXPECT_LT((a.cam_from_model.translation - b.cam_from_model.translation).norm(), 1e-9);
+    EXPECT_LT((a.cam_from_model.rotation - b.cam_from_model.rotation).norm(), 1e-9);
+  }
+  for (int m = 0; m < db_->num_models(); ++m) {
+    const NearSymmetryAxis& axis = warmed.SymmetryAxis(m, options.model_leaf);
+    const NearSymmetryAxis& built_cold = cold.SymmetryAxis(m, options.model_leaf);
+    EXPECT_EQ(axis.found, built_cold.found) << db_->model(m).name;
+    EXPECT_EQ(axis.direction, built_cold.direction) << db_->model(m).name;
+    EXPECT_EQ(warmed.RestingNormals(m, options.model_leaf),
+              cold.RestingNormals(m, options.model_leaf))
+        << db_->model(m).name;
   }
 }
 
