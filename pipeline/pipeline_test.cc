@@ -325,18 +325,11 @@ TEST_F(Pipeline, RecordedFrameSetsReplayThroughTheController) {
 TEST(TableJoins, WineGlassesOnTheirSidesCutInTwoByTheirUnscannedStems) {
   const testing::ScratchDir scratch;
   const std::string models = scratch.File("models");
-  const std::vector<std::pair<ObjectClass, std::vector<int>>> instances = {
-      {ObjectClass::kWineGlass, {0, 3, 12}}, {ObjectClass::kMug, {2, 8, 11}},
-      {ObjectClass::kGlass, {2, 12, 15}},      {ObjectClass::kCan, {1, 5}},
-      {ObjectClass::kBox, {0, 1}}};
-  for (const auto& [object_class, seeds] : instances) {
-    const std::string name = ToString(object_class);
-    std::filesystem::create_directories(models + "/" + name);
-    for (const int seed : seeds) {
-      WriteMesh(models + "/" + name + "/" + name + "_" + std::to_string(seed) + ".obj",
-                MakeObject(object_class, seed));
-    }
-  }
+  WriteProceduralModels(models, {{ObjectClass::kWineGlass, {0, 3, 12}},
+                                 {ObjectClass::kMug, {2, 8, 11}},
+                                 {ObjectClass::kGlass, {2, 12, 15}},
+                                 {ObjectClass::kCan, {1, 5}},
+                                 {ObjectClass::kBox, {0, 1}}});
   DatabaseOptions db_options = DatabaseOptions::Preset("sope");
   db_options.views_per_model = 80;
   WriteDatabase(scratch.File("db.sopedb"), BuildDatabase(models, db_options));

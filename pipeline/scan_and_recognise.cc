@@ -162,7 +162,7 @@ ScanAndRecogniseController::~ScanAndRecogniseController() {
 }
 
 ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& progress) {
-  if (options_.tabletop && !warm_up_.joinable()) {
+  if (options_.tabletop && options_.warm_up && !warm_up_.joinable()) {
     warm_up_ = std::thread([this] {
       try {
         scene_recogniser_.WarmUp(options_.scene, &stop_warm_up_);

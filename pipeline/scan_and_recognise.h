@@ -57,6 +57,10 @@ struct ScanAndRecogniseOptions {
   // (recogniser/scene_recognition.h) instead of one object in the range band. The band
   // above (when set) still limits the points considered.
   bool tabletop = false;
+  // Tabletop: build the scene recogniser's per-model caches on another thread from the
+  // first capture on (SceneRecogniser::WarmUp). Off where a controller makes one scan only
+  // (the tabletop evaluation: a controller per scene would build them all each time).
+  bool warm_up = true;
   SceneRecognitionOptions scene;  // its `recognition` is replaced by `recognition` above
   // Checked between scans; when it becomes true the run ends after the current scan (a
   // capture under way is cancelled by the source's session, which watches the same flag).

@@ -28,6 +28,7 @@ ScanAndRecogniseOptions SceneControllerOptions(const TableEvalOptions& options,
   ScanAndRecogniseOptions controller_options = options.controller;
   controller_options.tabletop = true;
   controller_options.max_scans = 1;
+  controller_options.warm_up = false;  // one scan per controller
   controller_options.fail_on_nothing_found = false;
   if (controller_options.out_dir.empty() && !out_dir.empty()) {
     controller_options.out_dir = JoinPath(out_dir, "scans");

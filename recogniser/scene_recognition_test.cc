@@ -273,16 +273,9 @@ TEST_F(SceneRecognitionTest, UnseenInstancesPassAtClassLevelAndClutterDoesNot) {
 // giving each class and its seeds (model names CLASS_SEED), written into `scratch`.
 std::unique_ptr<Database> ProceduralDatabase(
     const testing::ScratchDir& scratch,
-    const std::vector<std::pair<ObjectClass, std::vector<int>>>& instances) {
+    const std::vector<std::pair<ObjectClass, std::vector<uint64_t>>>& instances) {
   const std::string models = scratch.File("models");
-  for (const auto& [object_class, seeds] : instances) {
-    const std::string name = ToString(object_class);
-    fs::create_directories(models + "/" + name);
-    for (const int seed : seeds) {
-      WriteMesh(models + "/" + name + "/" + name + "_" + std::to_string(seed) + ".obj",
-                MakeObject(object_class, seed));
-    }
-  }
+  WriteProceduralModels(models, instances);
   DatabaseOptions db_options = DatabaseOptions::Preset("sope");
   db_options.views_per_model = 80;
   WriteDatabase(scratch.File("procedural.sopedb"), BuildDatabase(models, db_options));

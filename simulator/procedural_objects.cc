@@ -727,31 +727,57 @@ bool IsProceduralModelsDirectory(const std::string& dir) {
 
 }  // namespace
 
+namespace {
+// One model file to write: <class>/<class>_<index>.obj holding instance `seed`.
+struct ModelFile {
+  ObjectClass object_class;
+  uint64_t index, seed;
+};
+std::vector<std::string> WriteModelFiles(const std::string& dir, const std::vector<ModelFile>& files,
+                                         const ProceduralObjectOptions& options) {
+  SOPE_CHECK(!dir.empty(), "WriteProceduralModels: empty directory name");
+  options.Check();
+  // Staged as a whole: a full disk or a signal leaves no partial models directory.
+  StagedDirectory staged(dir, &IsProceduralModelsDirectory);
+  std::vector<std::string> paths;
+  for (const ModelFile& f : files) {
+    const std::string name = ToString(f.object_class);
+    const std::string file = JoinPath(name, fmt::format("{}_{}.obj", name, f.index));
+    WriteMesh(JoinPath(staged.path(), file), MakeObject(f.object_class, f.seed, options));
+    paths.push_back(JoinPath(dir, file));
+  }
+  staged.Commit();
+  return paths;
+}
+}  // namespace
+
 std::vector<std::string> WriteProceduralModels(const std::string& dir, int instances_per_class,
                                                uint64_t seed,
                                                const ProceduralObjectOptions& options) {
-  SOPE_CHECK(!dir.empty(), "WriteProceduralModels: empty directory name");
   SOPE_CHECK(instances_per_class >= 1 && instances_per_class <= kMaxInstancesPerClass,
              "WriteProceduralModels: instances per class must be in [1, {}], got {}",
              kMaxInstancesPerClass, instances_per_class);
   SOPE_CHECK(seed <= std::numeric_limits<uint64_t>::max() - instances_per_class,
              "WriteProceduralModels: seed {} + {} instances overflows", seed,
              instances_per_class);
-  options.Check();
-  // Staged as a whole: a full disk or a signal leaves no partial models directory.
-  StagedDirectory staged(dir, &IsProceduralModelsDirectory);
-  std::vector<std::string> paths;
+  std::vector<ModelFile> files;
   for (ObjectClass cls : kAllClasses) {
-    const std::string name = ToString(cls);
     for (int k = 0; k < instances_per_class; ++k) {
-      const std::string file = JoinPath(name, fmt::format("{}_{}.obj", name, k));
-      WriteMesh(JoinPath(staged.path(), file),
-                MakeObject(cls, seed + static_cast<uint64_t>(k), options));
-      paths.push_back(JoinPath(dir, file));
+      files.push_back({cls, static_cast<uint64_t>(k), seed + static_cast<uint64_t>(k)});
     }
   }
-  staged.Commit();
-  return paths;
+  return WriteModelFiles(dir, files, options);
+}
+
+std::vector<std::string> WriteProceduralModels(
+    const std::string& dir,
+    const std::vector<std::pair<ObjectClass, std::vector<uint64_t>>>& instances,
+    const ProceduralObjectOptions& options) {
+  std::vector<ModelFile> files;
+  for (const auto& [object_class, seeds] : instances) {
+    for (const uint64_t seed : seeds) files.push_back({object_class, seed, seed});
+  }
+  return WriteModelFiles(dir, files, options);
 }
 
 // ---------------------------------------------------------------------------------------

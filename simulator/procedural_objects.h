@@ -64,6 +64,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <Eigen/Core>
@@ -138,6 +139,12 @@ constexpr int kMaxInstancesPerClass = 1000;
 std::vector<std::string> WriteProceduralModels(const std::string& dir, int instances_per_class,
                                                uint64_t seed,
                                                const ProceduralObjectOptions& options = {});
+// The same for chosen instances: per class the given instance seeds, each written as
+// <class>/<class>_<seed>.obj (the model names CLASS_SEED).
+std::vector<std::string> WriteProceduralModels(
+    const std::string& dir,
+    const std::vector<std::pair<ObjectClass, std::vector<uint64_t>>>& instances,
+    const ProceduralObjectOptions& options = {});
 
 namespace internal {
 // Building blocks, exposed for the tests.
