@@ -666,7 +666,9 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
         const float t = static_cast<float>(k) / steps;
         const Eigen::Vector3f s = pa + t * (pb - pa);
         ++samples;
-        seen += sight->SeenDepth(s) > s.z() + static_cast<float>(options.scene_leaf);
+        const float seen_depth = sight->SeenDepth(s);  // ∞: nothing seen there
+        seen += std::isfinite(seen_depth) &&
+                seen_depth > s.z() + static_cast<float>(options.scene_leaf);
       }
       const bool unseen = samples == 0 || seen <= options.join_max_seen * samples;
       spdlog::debug("labels {} and {}: {:.0f} mm apart, {} of {} samples of the gap seen "
