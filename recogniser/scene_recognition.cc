@@ -167,6 +167,7 @@ struct SceneContext {
   const TablePlane& plane;
   const std::vector<ObjectCluster>& clusters;
   const ThinnedScene& scene;
+  double max_diameter;  // of the database's largest model, metres
 };
 
 // The hypotheses gathered so far, each cluster's first recognition, and the time spent.
@@ -588,18 +589,18 @@ class SightGrid {
   std::vector<float> depth_;
 };
 
-// Pairs of labels (a < b, as NeighbouringLabels) whose thinned points come within
-// join_gap of each other but not within join_distance, that one object could span
-// (no two of their points farther apart than max_scale × the largest model's diameter), and across whose
-// gap the camera did not see: along the segment between their nearest points (on a grid
-// of 3 scene leaves) at most join_max_seen of the samples have the cloud's nearest point
-// in their line of sight more than a scene leaf behind them. Two objects apart on the
-// table show the table through the gap; the parts of one object that a shadow or a part
-// too thin to scan (a wine glass's stem, a bottle's shoulder at a grazing angle) cut
-// apart show nothing there.
+// Pairs of labels (a < b, as NeighbouringLabels; a a cluster, below num_clusters) whose
+// thinned points come within join_gap of each other but not within join_distance, that one
+// object could span (no two of their points farther apart than max_scale × the largest
+// model's diameter), and across whose gap the camera did not see: along the segment
+// between their nearest points (on a grid of 3 scene leaves) at most join_max_seen of the
+// samples have the cloud's nearest point in their line of sight more than a scene leaf
+// behind them. Two objects apart on the table show the table through the gap; the parts
+// of one object that a shadow or a part too thin to scan (a wine glass's stem, a bottle's
+// shoulder at a grazing angle) cut apart show nothing there.
 std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
-                                                 const std::vector<int>& label, int num_labels,
-                                                 double max_diameter) {
+                                                 const std::vector<int>& label,
+                                                 int num_clusters, int num_labels) {
   const SceneRecognitionOptions& options = ctx.options;
   const ThinnedScene& scene = ctx.scene;
   if (options.join_gap <= options.join_distance || num_labels < 2) return {};
@@ -618,15 +619,16 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
   }
   const float gap2 = static_cast<float>(options.join_gap * options.join_gap);
   const float near2 = static_cast<float>(options.join_distance * options.join_distance);
+  const double reach = std::max(1.0, options.max_scale) * ctx.max_diameter;
   std::unique_ptr<SightGrid> sight;
   std::vector<std::pair<int, int>> pairs;
-  for (int a = 0; a < num_labels; ++a) {
+  // `a` a cluster (two accepted objects have nothing unexplained to join).
+  for (int a = 0; a < std::min(num_clusters, num_labels); ++a) {
     if (sample[a].empty()) continue;
     for (int b = a + 1; b < num_labels; ++b) {
       if (sample[b].empty()) continue;
       if (box[a].exteriorDistance(box[b]) > options.join_gap) continue;
       // The longest side of their joint box is a lower bound of their joint extent.
-      const double reach = std::max(1.0, options.max_scale) * max_diameter;
       if (box[a].merged(box[b]).sizes().maxCoeff() > reach) continue;
       float best = std::numeric_limits<float>::max();
       Eigen::Vector3f pa, pb;
@@ -640,15 +642,12 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
       // miss the nearest points by up to a cell: a pair that near is left to it).
       if (best > gap2 || best <= near2) continue;
       // Both within one model's reach: the largest distance between their points.
-      const std::vector<Eigen::Vector3f>* parts[2] = {&sample[a], &sample[b]};
+      std::vector<Eigen::Vector3f> both = sample[a];
+      both.insert(both.end(), sample[b].begin(), sample[b].end());
       float extent2 = 0.0f;
-      for (int i = 0; i < 2; ++i) {
-        for (size_t k = 0; k < parts[i]->size(); ++k) {
-          for (int j = i; j < 2; ++j) {
-            for (size_t m = i == j ? k + 1 : 0; m < parts[j]->size(); ++m) {
-              extent2 = std::max(extent2, ((*parts[i])[k] - (*parts[j])[m]).squaredNorm());
-            }
-          }
+      for (size_t k = 0; k < both.size(); ++k) {
+        for (size_t m = k + 1; m < both.size(); ++m) {
+          extent2 = std::max(extent2, (both[k] - both[m]).squaredNorm());
         }
       }
       if (std::sqrt(extent2) > reach) continue;
@@ -778,11 +777,7 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   };
   std::vector<std::pair<int, int>> pairs =
       NeighbouringLabels(scene, label, num_labels, options.join_distance);
-  double max_diameter = 0.0;
-  for (int m = 0; m < ctx.database.num_models(); ++m) {
-    max_diameter = std::max(max_diameter, ctx.database.model(m).diameter);
-  }
-  for (const auto& pair : UnseenGapLabels(ctx, label, num_labels, max_diameter)) {
+  for (const auto& pair : UnseenGapLabels(ctx, label, num_clusters, num_labels)) {
     pairs.push_back(pair);
   }
   bool added = false;
@@ -1561,7 +1556,7 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
   SceneRecognitionResult result;
   result.segmentation = SegmentTable(cloud, options.segmentation);
   result.timing.segment = result.segmentation.ms;
-  double max_diameter = 0.0;
+  double max_diameter = 0.0;  // SceneContext::max_diameter
   for (int m = 0; m < database_.num_models(); ++m) {
     max_diameter = std::max(max_diameter, database_.model(m).diameter);
   }
@@ -1584,8 +1579,8 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     return result;
   }
   const ThinnedScene scene = ThinClusters(cloud, clusters, options.scene_leaf);
-  const SceneContext ctx{*this, recogniser_, database_, cloud, options,
-                         result.segmentation.plane, clusters, scene};
+  const SceneContext ctx{*this,    recogniser_, database_, cloud,       options,
+                         result.segmentation.plane, clusters,   scene,   max_diameter};
 
   HypothesisPool pool;
   pool.cluster_results.resize(clusters.size());
