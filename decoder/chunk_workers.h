@@ -5,6 +5,7 @@
 #include <cstddef>
 #include <system_error>
 #include <thread>
+#include <utility>
 #include <vector>
 
 namespace sope {
@@ -15,6 +16,12 @@ inline size_t NumChunkWorkers(int num_threads, size_t num_chunks) {
   return std::max<size_t>(1, std::min(static_cast<size_t>(num_threads), num_chunks));
 }
 
+// The chunks [first, last) of worker `worker` in RunChunksOnWorkers.
+inline std::pair<size_t, size_t> WorkerChunks(size_t worker, size_t num_chunks,
+                                              size_t num_workers) {
+  return {num_chunks * worker / num_workers, num_chunks * (worker + 1) / num_workers};
+}
+
 // The decoders' thread loop: chunks 0 … num_chunks − 1 split into contiguous ranges, one per
 // worker (each streams its own part of every frame), `decode_chunk(worker, chunk)` for each.
 // Worker 0 is the calling thread; when no more threads can be started, the caller decodes
@@ -23,8 +30,7 @@ inline size_t NumChunkWorkers(int num_threads, size_t num_chunks) {
 template <typename DecodeChunk>
 void RunChunksOnWorkers(size_t num_chunks, size_t num_workers, const DecodeChunk& decode_chunk) {
   auto run = [&](size_t worker) {
-    const size_t first = num_chunks * worker / num_workers;
-    const size_t last = num_chunks * (worker + 1) / num_workers;
+    const auto [first, last] = WorkerChunks(worker, num_chunks, num_workers);
     for (size_t chunk = first; chunk < last; ++chunk) decode_chunk(worker, chunk);
   };
   std::vector<std::thread> threads;

@@ -2,11 +2,19 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <optional>
+#include <type_traits>
+#include <utility>
 #include <vector>
+
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
@@ -24,6 +32,16 @@
 
 namespace sope {
 namespace internal {
+
+namespace {
+std::atomic<bool> portable_kernels_for_testing{false};
+}  // namespace
+
+bool UsePortableKernelsForTesting() {
+  return portable_kernels_for_testing.load(std::memory_order_relaxed);
+}
+void SetPortableKernelsForTesting(bool portable) { portable_kernels_for_testing = portable; }
+
 namespace {
 
 // Pixels decoded together: every frame is read once per chunk, the per-chunk state
@@ -43,10 +61,10 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 constexpr size_t kCacheLineBytes = 64;
 constexpr int kPrefetchAheadPixels = kChunkPixels;
 constexpr int kPrefetchBlockPixels = 256;
-// FinishPixels resolves stripe boundaries in blocks of this many pixels, skipping blocks
-// without candidates (most of a scan: background, shadow, stripe interiors).
-constexpr int kBoundaryBlock = 64;
 constexpr int kPrefetchLocality = 3;
+// FinishPixelsPortable resolves stripe boundaries in blocks of this many pixels, skipping
+// blocks without candidates (most of a scan: background, shadow, stripe interiors).
+constexpr int kBoundaryBlock = 64;
 constexpr int kAxisX = static_cast<int>(PatternAxis::kX);
 constexpr int kAxisY = static_cast<int>(PatternAxis::kY);
 // A pixel's weak bit is resolved to a stripe boundary only when its decided bits clear
@@ -269,7 +287,7 @@ struct AxisFinish {
   bool gray = true;  // Gray code (else plain binary)
   // Largest coordinate difference of two neighbouring code words: the coordinate step.
   float max_neighbour_gap = 1.0f;
-  // The code words' coordinates (CoordinateOfWord: computed, as a table read would be a
+  // The code words' coordinates (BlockOfWord and CoordinateOfBlock: computed, as a table read would be a
   // gather per pixel and axis): the lowest bit and the projector size (0 and 1 for an
   // uncoded axis).
   uint32_t lowest_bit = 0;
@@ -286,7 +304,7 @@ AxisFinish MakeAxisFinish(const AxisPlan& axis) {
     finish.lowest_bit = static_cast<uint32_t>(axis.lowest_bit);
     finish.projector_size = static_cast<uint32_t>(axis.projector_size);
   } else {
-    finish.gray = false;  // words stay 0: CoordinateOfWord gives 0
+    finish.gray = false;  // words stay 0, whose coordinate is 0
   }
   return finish;
 }
@@ -296,20 +314,23 @@ AxisFinish MakeAxisFinish(const AxisPlan& axis) {
 inline uint32_t FloatBits(float value) { return __builtin_bit_cast(uint32_t, value); }
 inline float FloatFromBits(uint32_t bits) { return __builtin_bit_cast(float, bits); }
 
-// The projector coordinate of a code word (MakeCoordinateLut's table is made of these):
-// Gray → binary, then the centre of the coded block on the projector, NaN beyond it; in
-// plain integer operations so that the caller's loop vectorises (GCC 12 does not
-// vectorise a select on the comparison). Words have at most 16 bits; `gray_mask` is all
-// ones for a Gray code, 0 for binary; `nan_bits` are kNaN's. An uncoded axis passes size 1
-// and lowest bit 0: its words stay 0, whose coordinate is then 0.
-inline float CoordinateOfWord(uint32_t word, uint32_t gray_mask, uint32_t lowest_bit,
-                              uint32_t projector_size, uint32_t nan_bits) {
+// The coded block of a code word: Gray → binary (`gray_mask` all ones) or the word itself
+// (0, a binary code). Words have at most 16 bits.
+inline uint32_t BlockOfWord(uint32_t word, uint32_t gray_mask) {
   uint32_t binary = word;  // BinaryFromGray for 16-bit words
   binary ^= binary >> 8;
   binary ^= binary >> 4;
   binary ^= binary >> 2;
   binary ^= binary >> 1;
-  const uint32_t block = word ^ ((binary ^ word) & gray_mask);
+  return word ^ ((binary ^ word) & gray_mask);
+}
+
+// The projector coordinate of a block: its centre on the projector, NaN beyond it; in
+// plain integer operations so that the caller's loop vectorises (GCC 12 does not
+// vectorise a select on the comparison). `nan_bits` are kNaN's. An uncoded axis passes
+// size 1 and lowest bit 0: its words stay 0, whose coordinate is then 0.
+inline float CoordinateOfBlock(uint32_t block, uint32_t lowest_bit, uint32_t projector_size,
+                               uint32_t nan_bits) {
   const uint32_t start = block << lowest_bit;
   const uint32_t end = std::min(start + (1u << lowest_bit), projector_size);
   const float centre = 0.5f * static_cast<float>(start + end - 1);
@@ -317,6 +338,12 @@ inline float CoordinateOfWord(uint32_t word, uint32_t gray_mask, uint32_t lowest
   const uint32_t on_projector =
       ~static_cast<uint32_t>(static_cast<int32_t>(projector_size - 1 - start) >> 31);
   return FloatFromBits((FloatBits(centre) & on_projector) | (nan_bits & ~on_projector));
+}
+
+// The projector coordinate of a code word (MakeCoordinateLut's table is made of these).
+inline float CoordinateOfWord(uint32_t word, uint32_t gray_mask, uint32_t lowest_bit,
+                              uint32_t projector_size, uint32_t nan_bits) {
+  return CoordinateOfBlock(BlockOfWord(word, gray_mask), lowest_bit, projector_size, nan_bits);
 }
 
 // FinishPixels' second pass over n pixels (a function of its own, called only for the
@@ -393,7 +420,7 @@ __attribute__((noinline)) void ResolveBoundaries(
 // the boundary candidates (`candidate`, scratch of n bytes); the second (ResolveBoundaries)
 // visits the blocks of kBoundaryBlock pixels that hold some.
 template <typename Margin, typename Wide>
-void FinishPixels(int n, const uint8_t* __restrict code_x_high,
+void FinishPixelsPortable(int n, const uint8_t* __restrict code_x_high,
                   const uint8_t* __restrict code_x_low, const uint8_t* __restrict code_y_high,
                   const uint8_t* __restrict code_y_low, const uint8_t* __restrict weak_x_high,
                   const uint8_t* __restrict weak_x_low, const uint8_t* __restrict weak_y_high,
@@ -442,6 +469,184 @@ void FinishPixels(int n, const uint8_t* __restrict code_x_high,
   }
 }
 
+
+// The AVX-512 kernel reads the boundary in one pass: when an axis has a single weak bit,
+// its two words are the pixel's own and the one with that bit flipped (two weak bits on an
+// axis never give neighbours: Gray neighbours differ in one bit), and flipping Gray bit k
+// flips binary bits k … 0, so the other word's block is the pixel's own block XOR
+// (2^(k+1) − 1): one Gray → binary conversion per axis serves both words.
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__) && \
+    defined(__AVX512DQ__)
+// GCC 12 flags its own intrinsics headers (the masked zero-extensions) as maybe-uninitialised
+// under -march=native: a known false positive.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+// 16 values as 32-bit integers (zero- or sign-extended as their type).
+template <typename T>
+inline __m512i LoadEpi32(const T* p) {
+  if constexpr (std::is_same_v<T, uint8_t>) {
+    return _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)));
+  } else if constexpr (std::is_same_v<T, uint16_t>) {
+    return _mm512_cvtepu16_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(p)));
+  } else if constexpr (std::is_same_v<T, int16_t>) {
+    return _mm512_cvtepi16_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(p)));
+  } else {
+    static_assert(std::is_same_v<T, int32_t>);
+    return _mm512_loadu_si512(p);
+  }
+}
+
+// FinishPixelsPortable 16 pixels per step with AVX-512; returns the number of pixels done
+// (a multiple of 16), the rest is left to the portable loop. The same operations in the
+// same order, so the same bits: GCC vectorises the portable loop over 64 byte lanes at
+// once and spills (3× slower), or not at all for some margin types.
+template <typename Margin, typename Wide>
+int FinishPixelsAvx512(int n, const uint8_t* __restrict code_x_high,
+                       const uint8_t* __restrict code_x_low, const uint8_t* __restrict code_y_high,
+                       const uint8_t* __restrict code_y_low, const uint8_t* __restrict weak_x_high,
+                       const uint8_t* __restrict weak_x_low, const uint8_t* __restrict weak_y_high,
+                       const uint8_t* __restrict weak_y_low, const AxisFinish& axis_x,
+                       const AxisFinish& axis_y, const Wide* __restrict contrast,
+                       const Margin* __restrict margin, int min_contrast, int solid_margin,
+                       float margin_scale, float* __restrict out_x, float* __restrict out_y,
+                       uint8_t* __restrict mask, float* __restrict confidence) {
+  const __m512i gray_x = _mm512_set1_epi32(axis_x.gray ? -1 : 0);
+  const __m512i gray_y = _mm512_set1_epi32(axis_y.gray ? -1 : 0);
+  const __m512 max_gap_x = _mm512_set1_ps(axis_x.max_neighbour_gap);
+  const __m512 max_gap_y = _mm512_set1_ps(axis_y.max_neighbour_gap);
+  const __m128i low_x = _mm_cvtsi32_si128(static_cast<int>(axis_x.lowest_bit));
+  const __m128i low_y = _mm_cvtsi32_si128(static_cast<int>(axis_y.lowest_bit));
+  const __m512i step_x = _mm512_set1_epi32(static_cast<int>(1u << axis_x.lowest_bit));
+  const __m512i step_y = _mm512_set1_epi32(static_cast<int>(1u << axis_y.lowest_bit));
+  const __m512i size_x = _mm512_set1_epi32(static_cast<int>(axis_x.projector_size));
+  const __m512i size_y = _mm512_set1_epi32(static_cast<int>(axis_y.projector_size));
+  const __m512i one = _mm512_set1_epi32(1);
+  const __m512i min_contrast_v = _mm512_set1_epi32(min_contrast);
+  const __m512i solid_margin_v = _mm512_set1_epi32(solid_margin);
+  const __m512 half = _mm512_set1_ps(0.5f);
+  const __m512 one_f = _mm512_set1_ps(1.0f);
+  const __m512 nan = _mm512_set1_ps(kNaN);
+  const __m512 scale = _mm512_set1_ps(margin_scale);
+  const __mmask16 gray_x_k = axis_x.gray ? 0xFFFF : 0, gray_y_k = axis_y.gray ? 0xFFFF : 0;
+  const auto bytes = [](const uint8_t* p) { return LoadEpi32(p); };
+  const auto block_of_word = [](__m512i word, __m512i gray) {
+    __m512i binary = _mm512_xor_si512(word, _mm512_srli_epi32(word, 8));
+    binary = _mm512_xor_si512(binary, _mm512_srli_epi32(binary, 4));
+    binary = _mm512_xor_si512(binary, _mm512_srli_epi32(binary, 2));
+    binary = _mm512_xor_si512(binary, _mm512_srli_epi32(binary, 1));
+    // word ^ ((binary ^ word) & gray): 0x78 = A ^ (B & C).
+    return _mm512_ternarylogic_epi32(word, _mm512_xor_si512(binary, word), gray, 0x78);
+  };
+  const auto coordinate_of_block = [&](__m512i block, __m128i low, __m512i step,
+                                       __m512i size) {
+    const __m512i start = _mm512_sll_epi32(block, low);
+    const __m512i end = _mm512_min_epu32(_mm512_add_epi32(start, step), size);
+    const __m512 centre = _mm512_mul_ps(
+        half, _mm512_cvtepi32_ps(_mm512_sub_epi32(_mm512_add_epi32(start, end), one)));
+    return _mm512_mask_blend_ps(_mm512_cmplt_epu32_mask(start, size), nan, centre);
+  };
+  // (weak << 1) − [weak ≠ 0], on a Gray axis.
+  const auto flip_of_weak = [&](__m512i weak, __m512i gray) {
+    const __m512i doubled = _mm512_slli_epi32(weak, 1);
+    return _mm512_and_si512(
+        _mm512_mask_sub_epi32(doubled, _mm512_test_epi32_mask(weak, weak), doubled, one), gray);
+  };
+  const auto ok_axis = [](__m512i weak, __mmask16 gray, __m512 gap, __m512 max_gap,
+                          __m512i one_v) {
+    const __mmask16 none = _mm512_testn_epi32_mask(weak, weak);
+    const __mmask16 single =
+        _mm512_testn_epi32_mask(weak, _mm512_sub_epi32(weak, one_v));
+    const __mmask16 neighbours = _mm512_cmp_ps_mask(gap, _mm512_setzero_ps(), _CMP_GT_OQ) &
+                                 _mm512_cmp_ps_mask(gap, max_gap, _CMP_LE_OQ);
+    return static_cast<__mmask16>(none | (gray & single & neighbours));
+  };
+  const __m512 sign = _mm512_set1_ps(-0.0f);
+  int i = 0;
+  for (; i + 16 <= n; i += 16) {
+    const __m512i word_x =
+        _mm512_or_si512(_mm512_slli_epi32(bytes(code_x_high + i), 8), bytes(code_x_low + i));
+    const __m512i word_y =
+        _mm512_or_si512(_mm512_slli_epi32(bytes(code_y_high + i), 8), bytes(code_y_low + i));
+    const __m512i weak_x =
+        _mm512_or_si512(_mm512_slli_epi32(bytes(weak_x_high + i), 8), bytes(weak_x_low + i));
+    const __m512i weak_y =
+        _mm512_or_si512(_mm512_slli_epi32(bytes(weak_y_high + i), 8), bytes(weak_y_low + i));
+    const __m512i block_x = block_of_word(word_x, gray_x);
+    const __m512i block_y = block_of_word(word_y, gray_y);
+    const __m512 x = coordinate_of_block(block_x, low_x, step_x, size_x);
+    const __m512 y = coordinate_of_block(block_y, low_y, step_y, size_y);
+    const __m512i c = LoadEpi32(contrast + i);
+    const __m512i m = LoadEpi32(margin + i);
+    const __mmask16 lit = _mm512_cmpge_epi32_mask(c, min_contrast_v);
+    const __mmask16 no_weak =
+        _mm512_testn_epi32_mask(_mm512_or_si512(weak_x, weak_y), _mm512_or_si512(weak_x, weak_y));
+    const __mmask16 valid = lit & no_weak & _mm512_cmp_ps_mask(x, x, _CMP_ORD_Q) &
+                            _mm512_cmp_ps_mask(y, y, _CMP_ORD_Q);
+    // Boundary candidates; most steps have none (background, shadow, stripe interiors).
+    __mmask16 resolved = static_cast<__mmask16>(~no_weak) & lit &
+                         _mm512_cmpge_epi32_mask(m, solid_margin_v);
+    __m512 mid_x = nan, mid_y = nan;
+    if (resolved != 0) {
+      const __m512 other_x = coordinate_of_block(
+          _mm512_xor_si512(block_x, flip_of_weak(weak_x, gray_x)), low_x, step_x, size_x);
+      const __m512 other_y = coordinate_of_block(
+          _mm512_xor_si512(block_y, flip_of_weak(weak_y, gray_y)), low_y, step_y, size_y);
+      mid_x = _mm512_mul_ps(half, _mm512_add_ps(x, other_x));
+      mid_y = _mm512_mul_ps(half, _mm512_add_ps(y, other_y));
+      const __m512 gap_x = _mm512_andnot_ps(sign, _mm512_sub_ps(x, other_x));
+      const __m512 gap_y = _mm512_andnot_ps(sign, _mm512_sub_ps(y, other_y));
+      resolved &= ok_axis(weak_x, gray_x_k, gap_x, max_gap_x, one) &
+                  ok_axis(weak_y, gray_y_k, gap_y, max_gap_y, one) &
+                  _mm512_cmp_ps_mask(mid_x, mid_x, _CMP_ORD_Q) &
+                  _mm512_cmp_ps_mask(mid_y, mid_y, _CMP_ORD_Q);
+    }
+    _mm512_storeu_ps(out_x + i,
+                     _mm512_mask_blend_ps(valid, _mm512_mask_blend_ps(resolved, nan, mid_x), x));
+    _mm512_storeu_ps(out_y + i,
+                     _mm512_mask_blend_ps(valid, _mm512_mask_blend_ps(resolved, nan, mid_y), y));
+    const __mmask16 decoded = valid | resolved;
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(mask + i), _mm_movm_epi8(decoded));
+    const __m512 relative = _mm512_div_ps(
+        _mm512_cvtepi32_ps(m), _mm512_mul_ps(scale, _mm512_cvtepi32_ps(_mm512_max_epi32(c, one))));
+    const __m512 capped = _mm512_maskz_mov_ps(decoded, _mm512_min_ps(relative, one_f));
+    _mm512_storeu_ps(confidence + i, _mm512_mask_mul_ps(capped, resolved, capped, half));
+  }
+  return i;
+}
+#pragma GCC diagnostic pop
+#endif
+
+// The chunk's pixels: the AVX-512 kernel where it applies, the portable loop for the rest.
+template <typename Margin, typename Wide>
+void FinishPixels(int n, const uint8_t* __restrict code_x_high,
+                  const uint8_t* __restrict code_x_low, const uint8_t* __restrict code_y_high,
+                  const uint8_t* __restrict code_y_low, const uint8_t* __restrict weak_x_high,
+                  const uint8_t* __restrict weak_x_low, const uint8_t* __restrict weak_y_high,
+                  const uint8_t* __restrict weak_y_low, const AxisFinish& axis_x,
+                  const AxisFinish& axis_y, const Wide* __restrict contrast,
+                  const Margin* __restrict margin, int min_contrast, int solid_margin,
+                  float margin_scale, float* __restrict out_x, float* __restrict out_y,
+                  uint8_t* __restrict mask, float* __restrict confidence,
+                  uint8_t* __restrict candidate) {
+  int done = 0;
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__) && \
+    defined(__AVX512DQ__)
+  {
+    if (!internal::UsePortableKernelsForTesting()) {
+      done = FinishPixelsAvx512(n, code_x_high, code_x_low, code_y_high, code_y_low,
+                                weak_x_high, weak_x_low, weak_y_high, weak_y_low, axis_x,
+                                axis_y, contrast, margin, min_contrast, solid_margin,
+                                margin_scale, out_x, out_y, mask, confidence);
+    }
+  }
+#endif
+  FinishPixelsPortable(n - done, code_x_high + done, code_x_low + done, code_y_high + done,
+                       code_y_low + done, weak_x_high + done, weak_x_low + done,
+                       weak_y_high + done, weak_y_low + done, axis_x, axis_y, contrast + done,
+                       margin + done, min_contrast, solid_margin, margin_scale, out_x + done,
+                       out_y + done, mask + done, confidence + done, candidate);
+}
+
 // Per-thread scratch for one chunk.
 template <typename Pixel>
 struct Workspace {
@@ -465,7 +670,7 @@ struct Workspace {
   alignas(64) uint8_t direct_dominates[kChunkPixels];
   alignas(64) uint8_t too_dark[kChunkPixels];
   alignas(64) float discard[kChunkPixels];  // coordinates of an axis that is not coded
-  alignas(64) uint8_t candidate[kChunkPixels];  // FinishPixels' boundary candidates
+  alignas(64) uint8_t candidate[kChunkPixels];  // FinishPixelsPortable's boundary candidates
 };
 
 template <typename Pixel>
@@ -615,9 +820,12 @@ class ChunkDecoder {
   std::unique_ptr<Workspace<Pixel>> workspace_;
 };
 
+// With a speckle filter (min_neighbours > 0), each worker filters its rows as it decodes
+// them, while they are in the cache (BandedSpeckleFilter).
 template <typename Pixel>
 void DecodeAllPixels(const DecodePlan& plan, const std::vector<cv::Mat>& images,
-                     const Thresholds& thresholds, const Outputs& outputs, int num_threads) {
+                     const Thresholds& thresholds, const Outputs& outputs, int num_threads,
+                     int min_neighbours, float tolerance, CorrespondenceMap* map) {
   std::vector<const Pixel*> frames;
   frames.reserve(images.size());
   for (const cv::Mat& image : images) frames.push_back(image.ptr<Pixel>());
@@ -628,10 +836,22 @@ void DecodeAllPixels(const DecodePlan& plan, const std::vector<cv::Mat>& images,
   std::vector<ChunkDecoder<Pixel>> decoders;
   decoders.reserve(num_workers);
   for (size_t w = 0; w < num_workers; ++w) decoders.emplace_back(plan, frames, thresholds, outputs);
+  std::optional<BandedSpeckleFilter> filter;
+  if (min_neighbours > 0) {
+    std::vector<std::pair<size_t, size_t>> worker_pixels;
+    for (size_t w = 0; w < num_workers; ++w) {
+      const auto [first, last] = WorkerChunks(w, num_chunks, num_workers);
+      worker_pixels.emplace_back(first * kChunkPixels, std::min(last * kChunkPixels, total));
+    }
+    filter.emplace(min_neighbours, tolerance, map, worker_pixels);
+  }
   RunChunksOnWorkers(num_chunks, num_workers, [&](size_t worker, size_t chunk) {
     const size_t begin = chunk * kChunkPixels;
-    decoders[worker].Decode(begin, static_cast<int>(std::min<size_t>(kChunkPixels, total - begin)));
+    const size_t end = std::min(begin + kChunkPixels, total);
+    decoders[worker].Decode(begin, static_cast<int>(end - begin));
+    if (filter) filter->PixelsDecoded(worker, end);
   });
+  if (filter) filter->Finish();
 }
 
 Thresholds MakeThresholds(const DecodePlan& plan, const DecoderOptions& options,
@@ -907,17 +1127,15 @@ void Decode(const FrameSet& frame_set, const DecoderOptions& options, Correspond
         plan, images,
         internal::MakeThresholds(plan, options,
                                  internal::PixelTraits<uint8_t>::kLevelsPerGreyLevel),
-        outputs, options.num_threads);
+        outputs, options.num_threads, options.min_consistent_neighbours,
+        static_cast<float>(options.neighbour_tolerance_px), map);
   } else {
     internal::DecodeAllPixels<uint16_t>(
         plan, images,
         internal::MakeThresholds(plan, options,
                                  internal::PixelTraits<uint16_t>::kLevelsPerGreyLevel),
-        outputs, options.num_threads);
-  }
-  if (options.min_consistent_neighbours > 0) {
-    internal::RemoveSpeckles(options.min_consistent_neighbours,
-                             static_cast<float>(options.neighbour_tolerance_px), map);
+        outputs, options.num_threads, options.min_consistent_neighbours,
+        static_cast<float>(options.neighbour_tolerance_px), map);
   }
   if (options.consistency.enabled) FillFromConsistentNeighbours(frame_set, options, map);
   if (options.gray_subpixel == GraySubpixel::kEdges) RefineGraySubpixel(frame_set, map);
@@ -1169,6 +1387,12 @@ struct IncrementalDecoder::Impl {
     std::vector<uint8_t> candidate(internal::kChunkPixels);
     const int solid_margin =
         internal::kSolidMarginFactor * std::max(thresholds.min_bit_margin, 1);
+    std::optional<internal::SpeckleFilter> filter;  // rows filtered as they are finished
+    if (options.min_consistent_neighbours > 0) {
+      filter.emplace(options.min_consistent_neighbours,
+                     static_cast<float>(options.neighbour_tolerance_px), map);
+    }
+    const size_t cols = static_cast<size_t>(manifest.camera_width);
     ForChunks([&](size_t begin, int n) {
       using internal::kAxisX;
       using internal::kAxisY;
@@ -1184,10 +1408,11 @@ struct IncrementalDecoder::Impl {
           outputs.proj[kAxisX] ? outputs.proj[kAxisX] + begin : discard.data(),
           outputs.proj[kAxisY] ? outputs.proj[kAxisY] + begin : discard.data(),
           outputs.mask + begin, outputs.confidence + begin, candidate.data());
+      if (filter) filter->RowsDecoded(static_cast<int>((begin + n) / cols));
     });
-    if (options.min_consistent_neighbours > 0) {
-      internal::RemoveSpeckles(options.min_consistent_neighbours,
-                               static_cast<float>(options.neighbour_tolerance_px), map);
+    if (filter) {
+      filter->Finish();
+      filter->ClearEdges();
     }
   }
 };

@@ -13,6 +13,12 @@
 namespace sope {
 namespace internal {
 
+// Tests: the decoders' SIMD kernels (AVX-512 builds) have portable loops that give the same
+// bits; true makes every decode use the portable loops (decoder_test compares the two).
+// Process-wide; not for concurrent decodes.
+bool UsePortableKernelsForTesting();
+void SetPortableKernelsForTesting(bool portable);
+
 // Which frames decide one bit: the pattern and its inverse, or the pattern against the
 // per-pixel threshold (white + black) / 2 when `inverse` < 0.
 struct BitFrames {

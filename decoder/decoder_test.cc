@@ -1,5 +1,6 @@
 #include "decoder/decoder.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstring>
@@ -7,6 +8,7 @@
 #include <limits>
 #include <numeric>
 #include <random>
+#include <utility>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
@@ -622,6 +624,85 @@ TEST(SyntheticDecode, SpeckleFilterRemovesIsolatedDecodesOnly) {
   ExpectConsistentMap(filtered);
 }
 
+// Restores the SIMD kernels when a test that switched them off ends.
+struct PortableKernels {
+  ~PortableKernels() { internal::SetPortableKernelsForTesting(false); }
+};
+
+// A random map of `size` with invalid pixels (NaN) and coordinates near the tolerance.
+CorrespondenceMap RandomMap(cv::Size size, bool two_axes, std::mt19937* random) {
+  std::uniform_real_distribution<float> jitter(-1.6f, 1.6f);
+  std::bernoulli_distribution invalid(0.2);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  CorrespondenceMap map;
+  map.projector_width = 100;
+  map.projector_height = 100;
+  map.mask = cv::Mat(size, CV_8UC1);
+  map.confidence = cv::Mat(size, CV_32FC1, cv::Scalar(0.5));
+  map.proj_x = cv::Mat(size, CV_32FC1);
+  if (two_axes) map.proj_y = cv::Mat(size, CV_32FC1);
+  for (int y = 0; y < size.height; ++y) {
+    for (int x = 0; x < size.width; ++x) {
+      const bool bad = invalid(*random);
+      map.mask.at<uint8_t>(y, x) = bad ? 0 : 255;
+      map.proj_x.at<float>(y, x) = bad ? nan : 10.0f + 0.5f * x + jitter(*random);
+      if (two_axes) map.proj_y.at<float>(y, x) = bad ? nan : 20.0f + jitter(*random);
+    }
+  }
+  return map;
+}
+
+CorrespondenceMap DeepCopy(const CorrespondenceMap& map) {
+  CorrespondenceMap copy = map;
+  copy.mask = map.mask.clone();
+  copy.confidence = map.confidence.clone();
+  copy.proj_x = map.proj_x.clone();
+  copy.proj_y = map.proj_y.clone();
+  return copy;
+}
+
+void ExpectSameMaps(const CorrespondenceMap& a, const CorrespondenceMap& b);
+
+// The banded filter (each decoding worker filters its own rows as it goes, the rows
+// between the workers' ranges at the end) gives RemoveSpeckles' map: ranges that start and
+// end mid-row, on row boundaries, shorter than a row, and one worker with every pixel;
+// rows announced a few pixels at a time, as chunks are decoded.
+TEST(SpeckleFilter, BandsGiveTheWholeImageFilter) {
+  std::mt19937 random(11);
+  for (const cv::Size size : {cv::Size(37, 23), cv::Size(150, 9), cv::Size(5, 40)}) {
+    const CorrespondenceMap original = RandomMap(size, true, &random);
+    CorrespondenceMap expected = DeepCopy(original);
+    internal::RemoveSpeckles(2, 1.0f, &expected);
+    const size_t total = static_cast<size_t>(size.area());
+    const size_t cols = static_cast<size_t>(size.width);
+    std::vector<std::vector<size_t>> splits = {
+        {0, total}, {0, total / 2, total}, {0, cols, 3 * cols, total},
+        {0, cols + 3, cols + 5, 4 * cols - 1, total}, {0, 1, 2 * cols, 2 * cols + 2, total}};
+    std::vector<size_t> random_cuts = {0, total};
+    std::uniform_int_distribution<size_t> cut(1, total - 1);
+    for (int i = 0; i < 5; ++i) random_cuts.push_back(cut(random));
+    std::sort(random_cuts.begin(), random_cuts.end());
+    random_cuts.erase(std::unique(random_cuts.begin(), random_cuts.end()), random_cuts.end());
+    splits.push_back(random_cuts);
+    for (const std::vector<size_t>& split : splits) {
+      CorrespondenceMap map = DeepCopy(original);
+      std::vector<std::pair<size_t, size_t>> ranges;
+      for (size_t w = 0; w + 1 < split.size(); ++w) ranges.emplace_back(split[w], split[w + 1]);
+      internal::BandedSpeckleFilter filter(2, 1.0f, &map, ranges);
+      // Workers in reverse order (any order must do), each in steps of 7 pixels.
+      for (size_t w = ranges.size(); w-- > 0;) {
+        for (size_t end = ranges[w].first; end < ranges[w].second;) {
+          end = std::min(end + 7, ranges[w].second);
+          filter.PixelsDecoded(w, end);
+        }
+      }
+      filter.Finish();
+      SCOPED_TRACE(::testing::Message() << size << " split into " << ranges.size());
+      ExpectSameMaps(map, expected);
+    }
+  }
+}
+
 // The speckle filter against the rule written out per pixel: a valid pixel stays when at
 // least min_neighbours of its 8 neighbours (inside the image) are within the tolerance on
 // every coded axis, judged on the unfiltered map. Random maps with invalid pixels (NaN),
@@ -632,9 +713,12 @@ TEST(SpeckleFilter, MatchesTheRuleOnRandomMaps) {
   std::bernoulli_distribution invalid(0.2);
   constexpr float kTolerance = 1.0f;
   const float nan = std::numeric_limits<float>::quiet_NaN();
+  const PortableKernels restore;
   for (const cv::Size size : {cv::Size(1, 1), cv::Size(1, 9), cv::Size(9, 1), cv::Size(2, 2),
-                              cv::Size(13, 7), cv::Size(64, 5)}) {
-    for (const bool two_axes : {false, true}) {
+                              cv::Size(13, 7), cv::Size(64, 5), cv::Size(147, 4)}) {
+    for (const auto& [two_axes, portable] : {std::pair{false, false}, std::pair{true, false},
+                                            std::pair{false, true}, std::pair{true, true}}) {
+      internal::SetPortableKernelsForTesting(portable);
       for (int min_neighbours = 1; min_neighbours <= 8; ++min_neighbours) {
         CorrespondenceMap map;
         map.projector_width = 100;
@@ -679,7 +763,8 @@ TEST(SpeckleFilter, MatchesTheRuleOnRandomMaps) {
             const bool valid = before.mask.at<uint8_t>(y, x) != 0;
             const bool kept = valid && count >= min_neighbours;
             SCOPED_TRACE(::testing::Message() << size << " two axes " << two_axes << " min "
-                                            << min_neighbours << " at " << x << "," << y);
+                                            << min_neighbours << " portable " << portable
+                                            << " at " << x << "," << y);
             ASSERT_EQ(map.mask.at<uint8_t>(y, x) != 0, kept);
             if (valid && !kept) {
               EXPECT_TRUE(std::isnan(map.proj_x.at<float>(y, x)));
@@ -789,6 +874,56 @@ void ExpectSameMaps(const CorrespondenceMap& a, const CorrespondenceMap& b) {
     ASSERT_EQ(x->type(), y->type());
     if (x->empty()) continue;
     EXPECT_EQ(std::memcmp(x->data, y->data, x->total() * x->elemSize()), 0);
+  }
+}
+
+// The SIMD kernels (AVX-512 builds: the coordinate pass, the speckle filter's pair tests
+// and counts) give the portable loops' maps bit for bit: noisy, blurred scenes whose
+// stripe edges leave weak bits (boundary pixels), with a relative bit threshold, with
+// threads, and camera widths that leave tails for the portable loops.
+TEST(SyntheticDecode, SimdKernelsGiveThePortableLoopsMaps) {
+  const PortableKernels restore;
+  for (const int width : {400, 517}) {
+    SceneOptions scene;
+    scene.camera_width = width;
+    scene.camera_height = 301;
+    scene.patterns.projector_width = 300;
+    scene.patterns.projector_height = 200;
+    scene.blur_sigma_px = 1.2;
+    scene.noise_sigma = 3.0;
+    SyntheticCapture capture = RenderScene(scene);
+    // Speckles: a lit pixel's values planted at isolated pixels of the shadow.
+    for (cv::Mat& image : capture.frame_set.images) {
+      for (int k = 0; k < 8; ++k) {
+        image.at<uint8_t>(205 + 5 * k, 45 + 6 * k) = image.at<uint8_t>(100, 200 + k);
+      }
+    }
+    for (const auto& [relative, threads] : {std::pair{0.0, 1}, std::pair{0.2, 1}, std::pair{0.0, 2}}) {
+      DecoderOptions options;
+      options.min_relative_bit_contrast = relative;
+      options.num_threads = threads;
+      internal::SetPortableKernelsForTesting(true);
+      const CorrespondenceMap portable = Decode(capture.frame_set, options);
+      internal::SetPortableKernelsForTesting(false);
+      const CorrespondenceMap simd = Decode(capture.frame_set, options);
+      SCOPED_TRACE(::testing::Message() << "width " << width << " relative " << relative
+                                        << " threads " << threads);
+      ExpectSameMaps(simd, portable);
+      // The scene exercises every branch: decoded pixels, boundary pixels (confidence
+      // halved, ≤ 0.5, at a half-integer coordinate) and speckles.
+      EXPECT_GT(cv::countNonZero(portable.mask), scene.camera_width * scene.camera_height / 2);
+      int boundary = 0;
+      for (int y = 0; y < portable.mask.rows; ++y) {
+        for (int x = 0; x < portable.mask.cols; ++x) {
+          const float u = portable.proj_x.at<float>(y, x);
+          boundary += portable.mask.at<uint8_t>(y, x) != 0 && u != std::floor(u);
+        }
+      }
+      EXPECT_GT(boundary, 100);
+      options.min_consistent_neighbours = 0;
+      EXPECT_GT(cv::countNonZero(Decode(capture.frame_set, options).mask),
+                cv::countNonZero(simd.mask));
+    }
   }
 }
 
