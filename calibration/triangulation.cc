@@ -534,6 +534,10 @@ void Interpolate(const Grid& grid_in, int n, const T* __restrict u_in,
   float* __restrict bottom = w->bottom;
   const float* data = grid.data;
   const int32_t stride = grid.stride;
+  for (int i = 0; i < n; i += 4) {
+    __builtin_prefetch(data + index[i] + 2 * stride, 0, 3);
+    __builtin_prefetch(data + index[i] - stride, 0, 3);
+  }
   for (int i = 0; i < n; ++i) {
     std::memcpy(top + 4 * i, data + index[i], 4 * sizeof(float));
     std::memcpy(bottom + 4 * i, data + index[i] + stride, 4 * sizeof(float));
@@ -871,6 +875,11 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
   inputs.map_y = map_y;
   inputs.x_begin = x_begin;
   inputs.x_end = x_end;
+  const bool last_row = y + 1 >= map.mask.rows;
+  inputs.next_mask = last_row ? nullptr : map.mask.ptr<uint8_t>(y + 1);
+  inputs.next_rays = last_row ? nullptr : camera_rays_.ptr<float>(y + 1);
+  inputs.next_map_x = last_row || map_x == nullptr ? nullptr : map.proj_x.ptr<float>(y + 1);
+  inputs.next_map_y = last_row || map_y == nullptr ? nullptr : map.proj_y.ptr<float>(y + 1);
   const int n = triangulation_rows::SelectCandidates(inputs, w.xs.data(), w.ray_x_row.data(),
                                                      w.ray_y_row.data(), w.coded_u_row.data(),
                                                      w.coded_v_row.data());

@@ -38,6 +38,12 @@ struct RowInputs {
   const float* map_x = nullptr;
   const float* map_y = nullptr;
   int x_begin = 0, x_end = 0;
+  // The same arrays one row down (nullptr: none), prefetched while this row is picked:
+  // the hardware prefetchers lose track of the four row streams at each row's end.
+  const uint8_t* next_mask = nullptr;
+  const float* next_rays = nullptr;
+  const float* next_map_x = nullptr;
+  const float* next_map_y = nullptr;
 };
 
 #if SOPE_TRIANGULATION_AVX512
@@ -66,6 +72,13 @@ inline int SelectCandidates(const RowInputs& in, int* __restrict xs, float* __re
   const __m512i odd = _mm512_add_epi32(even, _mm512_set1_epi32(1));
   const __m512 nan = _mm512_set1_ps(kNaN);
   for (int x = in.x_begin; x < in.x_end; x += 16) {
+    if (in.next_rays != nullptr) {
+      __builtin_prefetch(in.next_rays + 2 * x, 0, 3);
+      __builtin_prefetch(in.next_rays + 2 * x + 16, 0, 3);
+      if (in.next_map_x != nullptr) __builtin_prefetch(in.next_map_x + x, 0, 3);
+      if (in.next_map_y != nullptr) __builtin_prefetch(in.next_map_y + x, 0, 3);
+      if ((x & 63) == 0) __builtin_prefetch(in.next_mask + x, 0, 3);
+    }
     const int count = in.x_end - x < 16 ? in.x_end - x : 16;
     const __mmask16 tail = static_cast<__mmask16>((1u << count) - 1u);
     const __mmask16 keep = CandidateLanes(in, x, tail);
