@@ -470,6 +470,41 @@ void FinishPixelsPortable(int n, const uint8_t* __restrict code_x_high,
 }
 
 
+// One run of pixels for FinishPixels: the code and weak planes ([axis][kHigh / kLow]),
+// contrast and weakest margin per pixel, the thresholds, and the outputs.
+template <typename Margin, typename Wide>
+struct FinishRun {
+  int n = 0;
+  const uint8_t* code[2][2] = {};
+  const uint8_t* weak[2][2] = {};
+  const Wide* contrast = nullptr;
+  const Margin* margin = nullptr;
+  int min_contrast = 0, solid_margin = 0;
+  float margin_scale = 1.0f;
+  float* out_x = nullptr;
+  float* out_y = nullptr;
+  uint8_t* mask = nullptr;
+  float* confidence = nullptr;
+  // The same run without its first `count` pixels.
+  FinishRun Skip(int count) const {
+    FinishRun rest = *this;
+    rest.n = n - count;
+    for (int axis = 0; axis < 2; ++axis) {
+      for (int plane = 0; plane < 2; ++plane) {
+        rest.code[axis][plane] += count;
+        rest.weak[axis][plane] += count;
+      }
+    }
+    rest.contrast += count;
+    rest.margin += count;
+    rest.out_x += count;
+    rest.out_y += count;
+    rest.mask += count;
+    rest.confidence += count;
+    return rest;
+  }
+};
+
 // The AVX-512 kernel reads the boundary in one pass: when an axis has a single weak bit,
 // its two words are the pixel's own and the one with that bit flipped (two weak bits on an
 // axis never give neighbours: Gray neighbours differ in one bit), and flipping Gray bit k
@@ -501,15 +536,25 @@ inline __m512i LoadEpi32(const T* p) {
 // same order, so the same bits: GCC vectorises the portable loop over 64 byte lanes at
 // once and spills (3× slower), or not at all for some margin types.
 template <typename Margin, typename Wide>
-int FinishPixelsAvx512(int n, const uint8_t* __restrict code_x_high,
-                       const uint8_t* __restrict code_x_low, const uint8_t* __restrict code_y_high,
-                       const uint8_t* __restrict code_y_low, const uint8_t* __restrict weak_x_high,
-                       const uint8_t* __restrict weak_x_low, const uint8_t* __restrict weak_y_high,
-                       const uint8_t* __restrict weak_y_low, const AxisFinish& axis_x,
-                       const AxisFinish& axis_y, const Wide* __restrict contrast,
-                       const Margin* __restrict margin, int min_contrast, int solid_margin,
-                       float margin_scale, float* __restrict out_x, float* __restrict out_y,
-                       uint8_t* __restrict mask, float* __restrict confidence) {
+int FinishPixelsAvx512(const FinishRun<Margin, Wide>& run, const AxisFinish& axis_x,
+                       const AxisFinish& axis_y) {
+  const int n = run.n;
+  const uint8_t* code_x_high = run.code[kAxisX][kHigh];
+  const uint8_t* code_x_low = run.code[kAxisX][kLow];
+  const uint8_t* code_y_high = run.code[kAxisY][kHigh];
+  const uint8_t* code_y_low = run.code[kAxisY][kLow];
+  const uint8_t* weak_x_high = run.weak[kAxisX][kHigh];
+  const uint8_t* weak_x_low = run.weak[kAxisX][kLow];
+  const uint8_t* weak_y_high = run.weak[kAxisY][kHigh];
+  const uint8_t* weak_y_low = run.weak[kAxisY][kLow];
+  const Wide* contrast = run.contrast;
+  const Margin* margin = run.margin;
+  float* out_x = run.out_x;
+  float* out_y = run.out_y;
+  uint8_t* mask = run.mask;
+  float* confidence = run.confidence;
+  const int min_contrast = run.min_contrast, solid_margin = run.solid_margin;
+  const float margin_scale = run.margin_scale;
   const __m512i gray_x = _mm512_set1_epi32(axis_x.gray ? -1 : 0);
   const __m512i gray_y = _mm512_set1_epi32(axis_y.gray ? -1 : 0);
   const __m512 max_gap_x = _mm512_set1_ps(axis_x.max_neighbour_gap);
@@ -616,35 +661,45 @@ int FinishPixelsAvx512(int n, const uint8_t* __restrict code_x_high,
 #pragma GCC diagnostic pop
 #endif
 
-// The chunk's pixels: the AVX-512 kernel where it applies, the portable loop for the rest.
+// The run's pixels: the AVX-512 kernel where it applies, the portable loops for the rest.
+// `candidate`: scratch of run.n bytes.
 template <typename Margin, typename Wide>
-void FinishPixels(int n, const uint8_t* __restrict code_x_high,
-                  const uint8_t* __restrict code_x_low, const uint8_t* __restrict code_y_high,
-                  const uint8_t* __restrict code_y_low, const uint8_t* __restrict weak_x_high,
-                  const uint8_t* __restrict weak_x_low, const uint8_t* __restrict weak_y_high,
-                  const uint8_t* __restrict weak_y_low, const AxisFinish& axis_x,
-                  const AxisFinish& axis_y, const Wide* __restrict contrast,
-                  const Margin* __restrict margin, int min_contrast, int solid_margin,
-                  float margin_scale, float* __restrict out_x, float* __restrict out_y,
-                  uint8_t* __restrict mask, float* __restrict confidence,
-                  uint8_t* __restrict candidate) {
+void FinishPixels(const FinishRun<Margin, Wide>& run, const AxisFinish& axis_x,
+                  const AxisFinish& axis_y, uint8_t* candidate) {
   int done = 0;
 #if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__) && \
     defined(__AVX512DQ__)
-  {
-    if (!internal::UsePortableKernelsForTesting()) {
-      done = FinishPixelsAvx512(n, code_x_high, code_x_low, code_y_high, code_y_low,
-                                weak_x_high, weak_x_low, weak_y_high, weak_y_low, axis_x,
-                                axis_y, contrast, margin, min_contrast, solid_margin,
-                                margin_scale, out_x, out_y, mask, confidence);
-    }
-  }
+  if (!internal::UsePortableKernelsForTesting()) done = FinishPixelsAvx512(run, axis_x, axis_y);
 #endif
-  FinishPixelsPortable(n - done, code_x_high + done, code_x_low + done, code_y_high + done,
-                       code_y_low + done, weak_x_high + done, weak_x_low + done,
-                       weak_y_high + done, weak_y_low + done, axis_x, axis_y, contrast + done,
-                       margin + done, min_contrast, solid_margin, margin_scale, out_x + done,
-                       out_y + done, mask + done, confidence + done, candidate);
+  const FinishRun<Margin, Wide> rest = run.Skip(done);
+  FinishPixelsPortable(rest.n, rest.code[kAxisX][kHigh], rest.code[kAxisX][kLow],
+                       rest.code[kAxisY][kHigh], rest.code[kAxisY][kLow],
+                       rest.weak[kAxisX][kHigh], rest.weak[kAxisX][kLow],
+                       rest.weak[kAxisY][kHigh], rest.weak[kAxisY][kLow], axis_x, axis_y,
+                       rest.contrast, rest.margin, rest.min_contrast, rest.solid_margin,
+                       rest.margin_scale, rest.out_x, rest.out_y, rest.mask, rest.confidence,
+                       candidate);
+}
+
+// A run of n pixels from `begin` without its planes (the caller sets code and weak):
+// contrast and margin point at the run's first pixel; outputs of an uncoded axis go to
+// `discard` (n floats).
+template <typename Margin, typename Wide>
+FinishRun<Margin, Wide> MakeFinishRun(int n, const Wide* contrast, const Margin* margin,
+                                      const Thresholds& thresholds, const Outputs& outputs,
+                                      size_t begin, float* discard) {
+  FinishRun<Margin, Wide> run;
+  run.n = n;
+  run.contrast = contrast;
+  run.margin = margin;
+  run.min_contrast = thresholds.min_contrast;
+  run.solid_margin = kSolidMarginFactor * std::max(thresholds.min_bit_margin, 1);
+  run.margin_scale = static_cast<float>(thresholds.margin_scale);
+  run.out_x = outputs.proj[kAxisX] ? outputs.proj[kAxisX] + begin : discard;
+  run.out_y = outputs.proj[kAxisY] ? outputs.proj[kAxisY] + begin : discard;
+  run.mask = outputs.mask + begin;
+  run.confidence = outputs.confidence + begin;
+  return run;
 }
 
 // Per-thread scratch for one chunk.
@@ -801,15 +856,14 @@ class ChunkDecoder {
   template <typename Margin>
   void Finish(size_t begin, int n, const Margin* margin) {
     Workspace<Pixel>& ws = *workspace_;
-    FinishPixels(n, ws.code[kAxisX][kHigh], ws.code[kAxisX][kLow], ws.code[kAxisY][kHigh],
-                 ws.code[kAxisY][kLow], ws.weak[kAxisX][kHigh], ws.weak[kAxisX][kLow],
-                 ws.weak[kAxisY][kHigh], ws.weak[kAxisY][kLow], finish_x_, finish_y_,
-                 ws.contrast, margin, thresholds_.min_contrast,
-                 kSolidMarginFactor * std::max(thresholds_.min_bit_margin, 1),
-                 static_cast<float>(thresholds_.margin_scale),
-                 outputs_.proj[kAxisX] ? outputs_.proj[kAxisX] + begin : ws.discard,
-                 outputs_.proj[kAxisY] ? outputs_.proj[kAxisY] + begin : ws.discard,
-                 outputs_.mask + begin, outputs_.confidence + begin, ws.candidate);
+    auto run = MakeFinishRun(n, ws.contrast, margin, thresholds_, outputs_, begin, ws.discard);
+    for (int axis : {kAxisX, kAxisY}) {
+      for (int plane : {kHigh, kLow}) {
+        run.code[axis][plane] = ws.code[axis][plane];
+        run.weak[axis][plane] = ws.weak[axis][plane];
+      }
+    }
+    FinishPixels(run, finish_x_, finish_y_, ws.candidate);
   }
 
   const DecodePlan& plan_;
@@ -1385,8 +1439,6 @@ struct IncrementalDecoder::Impl {
     const internal::AxisFinish finish_y = internal::MakeAxisFinish(plan.axes[internal::kAxisY]);
     std::vector<float> discard(internal::kChunkPixels);
     std::vector<uint8_t> candidate(internal::kChunkPixels);
-    const int solid_margin =
-        internal::kSolidMarginFactor * std::max(thresholds.min_bit_margin, 1);
     std::optional<internal::SpeckleFilter> filter;  // rows filtered as they are finished
     if (options.min_consistent_neighbours > 0) {
       filter.emplace(options.min_consistent_neighbours,
@@ -1398,16 +1450,16 @@ struct IncrementalDecoder::Impl {
       using internal::kAxisY;
       using internal::kHigh;
       using internal::kLow;
-      internal::FinishPixels(
-          n, code[kAxisX][kHigh].data() + begin, code[kAxisX][kLow].data() + begin,
-          code[kAxisY][kHigh].data() + begin, code[kAxisY][kLow].data() + begin,
-          weak[kAxisX][kHigh].data() + begin, weak[kAxisX][kLow].data() + begin,
-          weak[kAxisY][kHigh].data() + begin, weak[kAxisY][kLow].data() + begin, finish_x,
-          finish_y, contrast.data() + begin, margin.data() + begin, thresholds.min_contrast,
-          solid_margin, static_cast<float>(thresholds.margin_scale),
-          outputs.proj[kAxisX] ? outputs.proj[kAxisX] + begin : discard.data(),
-          outputs.proj[kAxisY] ? outputs.proj[kAxisY] + begin : discard.data(),
-          outputs.mask + begin, outputs.confidence + begin, candidate.data());
+      auto run = internal::MakeFinishRun(
+          n, contrast.data() + begin, margin.data() + begin, thresholds, outputs, begin,
+          discard.data());
+      for (int axis : {kAxisX, kAxisY}) {
+        for (int plane : {kHigh, kLow}) {
+          run.code[axis][plane] = code[axis][plane].data() + begin;
+          run.weak[axis][plane] = weak[axis][plane].data() + begin;
+        }
+      }
+      internal::FinishPixels(run, finish_x, finish_y, candidate.data());
       if (filter) filter->RowsDecoded(static_cast<int>((begin + n) / cols));
     });
     if (filter) {
