@@ -890,22 +890,10 @@ void DecodeAllPixels(const DecodePlan& plan, const std::vector<cv::Mat>& images,
   std::vector<ChunkDecoder<Pixel>> decoders;
   decoders.reserve(num_workers);
   for (size_t w = 0; w < num_workers; ++w) decoders.emplace_back(plan, frames, thresholds, outputs);
-  std::optional<BandedSpeckleFilter> filter;
-  if (min_neighbours > 0) {
-    std::vector<std::pair<size_t, size_t>> worker_pixels;
-    for (size_t w = 0; w < num_workers; ++w) {
-      const auto [first, last] = WorkerChunks(w, num_chunks, num_workers);
-      worker_pixels.emplace_back(first * kChunkPixels, std::min(last * kChunkPixels, total));
-    }
-    filter.emplace(min_neighbours, tolerance, map, worker_pixels);
-  }
-  RunChunksOnWorkers(num_chunks, num_workers, [&](size_t worker, size_t chunk) {
-    const size_t begin = chunk * kChunkPixels;
-    const size_t end = std::min(begin + kChunkPixels, total);
-    decoders[worker].Decode(begin, static_cast<int>(end - begin));
-    if (filter) filter->PixelsDecoded(worker, end);
-  });
-  if (filter) filter->Finish();
+  DecodeChunksAndFilter(total, kChunkPixels, num_workers, min_neighbours, tolerance, map,
+                        [&](size_t worker, size_t begin, int n) {
+                          decoders[worker].Decode(begin, n);
+                        });
 }
 
 Thresholds MakeThresholds(const DecodePlan& plan, const DecoderOptions& options,

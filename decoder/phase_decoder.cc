@@ -528,9 +528,12 @@ class ChunkDecoder {
   std::unique_ptr<Workspace> ws_;
 };
 
+// With a speckle filter (min_neighbours > 0), each worker filters its rows as it decodes
+// them (DecodeChunksAndFilter).
 template <typename Pixel>
 void DecodeAll(const Plan& plan, const std::vector<cv::Mat>& images, const Thresholds& thresholds,
-               const Outputs& outputs, int num_threads) {
+               const Outputs& outputs, int num_threads, int min_neighbours, float tolerance,
+               CorrespondenceMap* map) {
   std::vector<const Pixel*> frames;
   frames.reserve(images.size());
   for (const cv::Mat& image : images) frames.push_back(image.ptr<Pixel>());
@@ -541,10 +544,10 @@ void DecodeAll(const Plan& plan, const std::vector<cv::Mat>& images, const Thres
   std::vector<ChunkDecoder<Pixel>> decoders;
   decoders.reserve(num_workers);
   for (size_t w = 0; w < num_workers; ++w) decoders.emplace_back(plan, frames, thresholds, outputs);
-  RunChunksOnWorkers(num_chunks, num_workers, [&](size_t worker, size_t chunk) {
-    const size_t begin = chunk * kChunkPixels;
-    decoders[worker].Decode(begin, static_cast<int>(std::min<size_t>(kChunkPixels, total - begin)));
-  });
+  DecodeChunksAndFilter(total, kChunkPixels, num_workers, min_neighbours, tolerance, map,
+                        [&](size_t worker, size_t begin, int n) {
+                          decoders[worker].Decode(begin, n);
+                        });
 }
 
 void PrepareOutput(cv::Size size, int type, cv::Mat* image) {
@@ -844,14 +847,13 @@ void DecodePhase(const FrameSet& frame_set, const DecoderOptions& options, Corre
     outputs.modulation = images->modulation.ptr<float>();
     outputs.texture = images->texture.data;
   }
+  const float tolerance = static_cast<float>(options.neighbour_tolerance_px);
   if (sixteen_bit) {
-    internal::DecodeAll<uint16_t>(plan, frames, thresholds, outputs, options.num_threads);
+    internal::DecodeAll<uint16_t>(plan, frames, thresholds, outputs, options.num_threads,
+                                  options.min_consistent_neighbours, tolerance, map);
   } else {
-    internal::DecodeAll<uint8_t>(plan, frames, thresholds, outputs, options.num_threads);
-  }
-  if (options.min_consistent_neighbours > 0) {
-    internal::RemoveSpeckles(options.min_consistent_neighbours,
-                             static_cast<float>(options.neighbour_tolerance_px), map);
+    internal::DecodeAll<uint8_t>(plan, frames, thresholds, outputs, options.num_threads,
+                                 options.min_consistent_neighbours, tolerance, map);
   }
   if (options.phase.local_fit_radius > 0) {
     for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {

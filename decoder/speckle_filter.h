@@ -1,12 +1,15 @@
 // The speckle filter shared by the Gray-code and the phase-shift decoders.
 #pragma once
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <utility>
 #include <vector>
 
+#include "decoder/chunk_workers.h"
 #include "decoder/decoder.h"
 
 namespace sope {
@@ -90,6 +93,33 @@ class BandedSpeckleFilter {
   std::vector<std::unique_ptr<SpeckleFilter>> bands_;  // per worker; null: no row inside
   std::vector<std::pair<int, int>> band_rows_;         // [first, end) per worker
 };
+
+// The decoders' chunk loop with the speckle filter fused in: decode_chunk(worker, begin, n)
+// for every chunk of `chunk_pixels` of the map's `total` pixels on `num_workers` workers
+// (RunChunksOnWorkers), each worker filtering its rows as it decodes them when
+// min_neighbours > 0 (BandedSpeckleFilter), the rows between workers at the end.
+template <typename DecodeChunk>
+void DecodeChunksAndFilter(size_t total, size_t chunk_pixels, size_t num_workers,
+                           int min_neighbours, float tolerance, CorrespondenceMap* map,
+                           const DecodeChunk& decode_chunk) {
+  const size_t num_chunks = (total + chunk_pixels - 1) / chunk_pixels;
+  std::optional<BandedSpeckleFilter> filter;
+  if (min_neighbours > 0) {
+    std::vector<std::pair<size_t, size_t>> worker_pixels;
+    for (size_t w = 0; w < num_workers; ++w) {
+      const auto [first, last] = WorkerChunks(w, num_chunks, num_workers);
+      worker_pixels.emplace_back(first * chunk_pixels, std::min(last * chunk_pixels, total));
+    }
+    filter.emplace(min_neighbours, tolerance, map, worker_pixels);
+  }
+  RunChunksOnWorkers(num_chunks, num_workers, [&](size_t worker, size_t chunk) {
+    const size_t begin = chunk * chunk_pixels;
+    const size_t end = std::min(begin + chunk_pixels, total);
+    decode_chunk(worker, begin, static_cast<int>(end - begin));
+    if (filter) filter->PixelsDecoded(worker, end);
+  });
+  if (filter) filter->Finish();
+}
 
 }  // namespace internal
 }  // namespace sope
