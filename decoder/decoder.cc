@@ -287,9 +287,9 @@ struct AxisFinish {
   bool gray = true;  // Gray code (else plain binary)
   // Largest coordinate difference of two neighbouring code words: the coordinate step.
   float max_neighbour_gap = 1.0f;
-  // The code words' coordinates (BlockOfWord and CoordinateOfBlock: computed, as a table read would be a
-  // gather per pixel and axis): the lowest bit and the projector size (0 and 1 for an
-  // uncoded axis).
+  // The code words' coordinates (BlockOfWord and CoordinateOfBlock: computed, as a table
+  // read would be a gather per pixel and axis): the lowest bit and the projector size (0 and
+  // 1 for an uncoded axis).
   uint32_t lowest_bit = 0;
   uint32_t projector_size = 1;
 };
@@ -420,16 +420,15 @@ __attribute__((noinline)) void ResolveBoundaries(
 // the boundary candidates (`candidate`, scratch of n bytes); the second (ResolveBoundaries)
 // visits the blocks of kBoundaryBlock pixels that hold some.
 template <typename Margin, typename Wide>
-void FinishPixelsPortable(int n, const uint8_t* __restrict code_x_high,
-                  const uint8_t* __restrict code_x_low, const uint8_t* __restrict code_y_high,
-                  const uint8_t* __restrict code_y_low, const uint8_t* __restrict weak_x_high,
-                  const uint8_t* __restrict weak_x_low, const uint8_t* __restrict weak_y_high,
-                  const uint8_t* __restrict weak_y_low, const AxisFinish& axis_x,
-                  const AxisFinish& axis_y, const Wide* __restrict contrast,
-                  const Margin* __restrict margin, int min_contrast, int solid_margin,
-                  float margin_scale, float* __restrict out_x, float* __restrict out_y,
-                  uint8_t* __restrict mask, float* __restrict confidence,
-                  uint8_t* __restrict candidate) {
+void FinishPixelsPortable(
+    int n, const uint8_t* __restrict code_x_high, const uint8_t* __restrict code_x_low,
+    const uint8_t* __restrict code_y_high, const uint8_t* __restrict code_y_low,
+    const uint8_t* __restrict weak_x_high, const uint8_t* __restrict weak_x_low,
+    const uint8_t* __restrict weak_y_high, const uint8_t* __restrict weak_y_low,
+    const AxisFinish& axis_x, const AxisFinish& axis_y, const Wide* __restrict contrast,
+    const Margin* __restrict margin, int min_contrast, int solid_margin, float margin_scale,
+    float* __restrict out_x, float* __restrict out_y, uint8_t* __restrict mask,
+    float* __restrict confidence, uint8_t* __restrict candidate) {
   const uint32_t gray_x = axis_x.gray ? ~0u : 0u, gray_y = axis_y.gray ? ~0u : 0u;
   const uint32_t low_x = axis_x.lowest_bit, size_x = axis_x.projector_size;
   const uint32_t low_y = axis_y.lowest_bit, size_y = axis_y.projector_size;
@@ -468,7 +467,6 @@ void FinishPixelsPortable(int n, const uint8_t* __restrict code_x_high,
                       confidence + begin);
   }
 }
-
 
 // One run of pixels for FinishPixels: the code and weak planes ([axis][kHigh / kLow]),
 // contrast and weakest margin per pixel, the thresholds, and the outputs.
@@ -573,7 +571,6 @@ int FinishPixelsAvx512(const FinishRun<Margin, Wide>& run, const AxisFinish& axi
   const __m512 nan = _mm512_set1_ps(kNaN);
   const __m512 scale = _mm512_set1_ps(margin_scale);
   const __mmask16 gray_x_k = axis_x.gray ? 0xFFFF : 0, gray_y_k = axis_y.gray ? 0xFFFF : 0;
-  const auto bytes = [](const uint8_t* p) { return LoadEpi32(p); };
   const auto block_of_word = [](__m512i word, __m512i gray) {
     __m512i binary = _mm512_xor_si512(word, _mm512_srli_epi32(word, 8));
     binary = _mm512_xor_si512(binary, _mm512_srli_epi32(binary, 4));
@@ -609,13 +606,13 @@ int FinishPixelsAvx512(const FinishRun<Margin, Wide>& run, const AxisFinish& axi
   int i = 0;
   for (; i + 16 <= n; i += 16) {
     const __m512i word_x =
-        _mm512_or_si512(_mm512_slli_epi32(bytes(code_x_high + i), 8), bytes(code_x_low + i));
+        _mm512_or_si512(_mm512_slli_epi32(LoadEpi32(code_x_high + i), 8), LoadEpi32(code_x_low + i));
     const __m512i word_y =
-        _mm512_or_si512(_mm512_slli_epi32(bytes(code_y_high + i), 8), bytes(code_y_low + i));
+        _mm512_or_si512(_mm512_slli_epi32(LoadEpi32(code_y_high + i), 8), LoadEpi32(code_y_low + i));
     const __m512i weak_x =
-        _mm512_or_si512(_mm512_slli_epi32(bytes(weak_x_high + i), 8), bytes(weak_x_low + i));
+        _mm512_or_si512(_mm512_slli_epi32(LoadEpi32(weak_x_high + i), 8), LoadEpi32(weak_x_low + i));
     const __m512i weak_y =
-        _mm512_or_si512(_mm512_slli_epi32(bytes(weak_y_high + i), 8), bytes(weak_y_low + i));
+        _mm512_or_si512(_mm512_slli_epi32(LoadEpi32(weak_y_high + i), 8), LoadEpi32(weak_y_low + i));
     const __m512i block_x = block_of_word(word_x, gray_x);
     const __m512i block_y = block_of_word(word_y, gray_y);
     const __m512 x = coordinate_of_block(block_x, low_x, step_x, size_x);
@@ -1427,33 +1424,26 @@ struct IncrementalDecoder::Impl {
     const internal::AxisFinish finish_y = internal::MakeAxisFinish(plan.axes[internal::kAxisY]);
     std::vector<float> discard(internal::kChunkPixels);
     std::vector<uint8_t> candidate(internal::kChunkPixels);
-    std::optional<internal::SpeckleFilter> filter;  // rows filtered as they are finished
-    if (options.min_consistent_neighbours > 0) {
-      filter.emplace(options.min_consistent_neighbours,
-                     static_cast<float>(options.neighbour_tolerance_px), map);
-    }
-    const size_t cols = static_cast<size_t>(manifest.camera_width);
-    ForChunks([&](size_t begin, int n) {
-      using internal::kAxisX;
-      using internal::kAxisY;
-      using internal::kHigh;
-      using internal::kLow;
-      auto run = internal::MakeFinishRun(
-          n, contrast.data() + begin, margin.data() + begin, thresholds, outputs, begin,
-          discard.data());
-      for (int axis : {kAxisX, kAxisY}) {
-        for (int plane : {kHigh, kLow}) {
-          run.code[axis][plane] = code[axis][plane].data() + begin;
-          run.weak[axis][plane] = weak[axis][plane].data() + begin;
-        }
-      }
-      internal::FinishPixels(run, finish_x, finish_y, candidate.data());
-      if (filter) filter->RowsDecoded(static_cast<int>((begin + n) / cols));
-    });
-    if (filter) {
-      filter->Finish();
-      filter->ClearEdges();
-    }
+    // One worker, filtering the rows as they are finished.
+    internal::DecodeChunksAndFilter(
+        total, internal::kChunkPixels, 1, options.min_consistent_neighbours,
+        static_cast<float>(options.neighbour_tolerance_px), map,
+        [&](size_t /*worker*/, size_t begin, int n) {
+          using internal::kAxisX;
+          using internal::kAxisY;
+          using internal::kHigh;
+          using internal::kLow;
+          auto run = internal::MakeFinishRun(
+              n, contrast.data() + begin, margin.data() + begin, thresholds, outputs, begin,
+              discard.data());
+          for (int axis : {kAxisX, kAxisY}) {
+            for (int plane : {kHigh, kLow}) {
+              run.code[axis][plane] = code[axis][plane].data() + begin;
+              run.weak[axis][plane] = weak[axis][plane].data() + begin;
+            }
+          }
+          internal::FinishPixels(run, finish_x, finish_y, candidate.data());
+        });
   }
 };
 

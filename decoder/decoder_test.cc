@@ -709,10 +709,7 @@ TEST(SpeckleFilter, BandsGiveTheWholeImageFilter) {
 // coordinates near the tolerance, one and two coded axes, and thin images (borders only).
 TEST(SpeckleFilter, MatchesTheRuleOnRandomMaps) {
   std::mt19937 random(7);
-  std::uniform_real_distribution<float> jitter(-1.6f, 1.6f);
-  std::bernoulli_distribution invalid(0.2);
   constexpr float kTolerance = 1.0f;
-  const float nan = std::numeric_limits<float>::quiet_NaN();
   const PortableKernels restore;
   for (const cv::Size size : {cv::Size(1, 1), cv::Size(1, 9), cv::Size(9, 1), cv::Size(2, 2),
                               cv::Size(13, 7), cv::Size(64, 5), cv::Size(147, 4)}) {
@@ -720,25 +717,8 @@ TEST(SpeckleFilter, MatchesTheRuleOnRandomMaps) {
                                             std::pair{false, true}, std::pair{true, true}}) {
       internal::SetPortableKernelsForTesting(portable);
       for (int min_neighbours = 1; min_neighbours <= 8; ++min_neighbours) {
-        CorrespondenceMap map;
-        map.projector_width = 100;
-        map.projector_height = 100;
-        map.mask = cv::Mat(size, CV_8UC1, cv::Scalar(255));
-        map.confidence = cv::Mat(size, CV_32FC1, cv::Scalar(0.5));
-        map.proj_x = cv::Mat(size, CV_32FC1);
-        if (two_axes) map.proj_y = cv::Mat(size, CV_32FC1);
-        for (int y = 0; y < size.height; ++y) {
-          for (int x = 0; x < size.width; ++x) {
-            const bool bad = invalid(random);
-            map.mask.at<uint8_t>(y, x) = bad ? 0 : 255;
-            map.proj_x.at<float>(y, x) = bad ? nan : 10.0f + 0.5f * x + jitter(random);
-            if (two_axes) map.proj_y.at<float>(y, x) = bad ? nan : 20.0f + jitter(random);
-          }
-        }
-        CorrespondenceMap before = map;  // deep copies: the filter writes in place
-        before.mask = map.mask.clone();
-        before.proj_x = map.proj_x.clone();
-        before.proj_y = map.proj_y.clone();
+        CorrespondenceMap map = RandomMap(size, two_axes, &random);
+        const CorrespondenceMap before = DeepCopy(map);  // the filter writes in place
         internal::RemoveSpeckles(min_neighbours, kTolerance, &map);
         for (int y = 0; y < size.height; ++y) {
           for (int x = 0; x < size.width; ++x) {

@@ -28,7 +28,6 @@ inline bool Agrees(float u, float v, float nu, float nv, float tolerance) {
 }
 
 #if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
-constexpr bool kHaveAvx512 = true;
 // Agrees for 16 pixels (u, v) and their neighbours at nu, nv: |nu − u| ≤ t and
 // |nv − v| ≤ t, false for NaN — the same decisions as Agrees — as 16 bytes of 0 or 1.
 inline __m128i AgreesAvx512(__m512 u, __m512 v, const float* nu, const float* nv,
@@ -43,8 +42,6 @@ inline __m128i AgreesAvx512(__m512 u, __m512 v, const float* nu, const float* nv
 inline void Store16(uint8_t* destination, __m128i bytes) {
   _mm_storeu_si128(reinterpret_cast<__m128i*>(destination), bytes);
 }
-#else
-constexpr bool kHaveAvx512 = false;
 #endif
 
 // Pairs within row (u, v) of n pixels.
@@ -52,7 +49,7 @@ void RowAgreements(const float* __restrict u, const float* __restrict v, int n, 
                    uint8_t* __restrict right) {
   int x = 0;
 #if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
-  if (kHaveAvx512 && !UsePortableKernelsForTesting()) {
+  if (!UsePortableKernelsForTesting()) {
     const __m512 t = _mm512_set1_ps(tolerance);
     for (; x + 16 < n; x += 16) {
       Store16(right + x + 1,
@@ -70,13 +67,12 @@ void RowPairAgreements(const float* __restrict u, const float* __restrict v,
                        const float* __restrict ub, const float* __restrict vb, int n,
                        float tolerance, uint8_t* __restrict below,
                        uint8_t* __restrict below_right, uint8_t* __restrict below_left) {
-  int x = 0;
   // The first pixel has no neighbour below-left.
   if (n > 0) below[1] = Agrees(u[0], v[0], ub[0], vb[0], tolerance);
   if (n > 1) below_right[1] = Agrees(u[0], v[0], ub[1], vb[1], tolerance);
-  x = 1;
+  int x = 1;
 #if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
-  if (kHaveAvx512 && !UsePortableKernelsForTesting()) {
+  if (!UsePortableKernelsForTesting()) {
     const __m512 t = _mm512_set1_ps(tolerance);
     for (; x + 16 < n; x += 16) {
       const __m512 ux = _mm512_loadu_ps(u + x), vx = _mm512_loadu_ps(v + x);
@@ -104,7 +100,7 @@ void CollectSpeckles(const uint8_t* __restrict up, const uint8_t* __restrict up_
                      int min_neighbours, uint8_t* __restrict flag, std::vector<int>* flagged) {
   int x = 0;
 #if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
-  if (kHaveAvx512 && !UsePortableKernelsForTesting()) {
+  if (!UsePortableKernelsForTesting()) {
     // Counts of at most 8 in bytes; a valid pixel is flagged when its count is below the
     // minimum, 64 pixels per step, and the flagged ones are visited bit by bit.
     const auto load = [](const uint8_t* p) { return _mm512_loadu_si512(p); };
@@ -254,13 +250,9 @@ BandedSpeckleFilter::BandedSpeckleFilter(
     const int end_whole = static_cast<int>(end / cols);
     const int first = begin == 0 ? 0 : first_whole + 1;
     const int last = end >= total ? rows : end_whole - 1;
-    if (first < last) {
-      bands_.push_back(std::make_unique<SpeckleFilter>(min_neighbours, tolerance, map, first, last));
-      band_rows_.emplace_back(first, last);
-    } else {
-      bands_.push_back(nullptr);
-      band_rows_.emplace_back(0, 0);
-    }
+    bands_.push_back(first < last ? std::make_unique<SpeckleFilter>(min_neighbours, tolerance,
+                                                                    map, first, last)
+                                  : nullptr);
   }
 }
 
@@ -272,16 +264,15 @@ void BandedSpeckleFilter::PixelsDecoded(size_t worker, size_t end) {
 void BandedSpeckleFilter::Finish() {
   std::vector<std::unique_ptr<SpeckleFilter>> filters;
   int row = 0;  // the rows between the bands
-  for (size_t w = 0; w < bands_.size(); ++w) {
-    if (bands_[w] == nullptr) continue;
-    bands_[w]->Finish();
-    const auto [first, end] = band_rows_[w];
-    if (row < first) {
-      filters.push_back(
-          std::make_unique<SpeckleFilter>(min_neighbours_, tolerance_, map_, row, first));
+  for (const auto& band : bands_) {
+    if (band == nullptr) continue;
+    band->Finish();
+    if (row < band->first_row()) {
+      filters.push_back(std::make_unique<SpeckleFilter>(min_neighbours_, tolerance_, map_, row,
+                                                        band->first_row()));
       filters.back()->Finish();
     }
-    row = end;
+    row = band->end_row();
   }
   if (row < map_->mask.rows) {
     filters.push_back(std::make_unique<SpeckleFilter>(min_neighbours_, tolerance_, map_, row));

@@ -45,6 +45,9 @@ class SpeckleFilter {
   void Finish();
   // Clears the flagged pixels of the first and last rows (after Finish).
   void ClearEdges();
+  // The rows it filters: [first_row, end_row).
+  int first_row() const { return first_row_; }
+  int end_row() const { return end_row_; }
 
  private:
   // Agreement of neighbouring pixel pairs, 0 or 1 per pair, in arrays of cols + 2 entries
@@ -91,7 +94,6 @@ class BandedSpeckleFilter {
   const float tolerance_;
   CorrespondenceMap* map_;
   std::vector<std::unique_ptr<SpeckleFilter>> bands_;  // per worker; null: no row inside
-  std::vector<std::pair<int, int>> band_rows_;         // [first, end) per worker
 };
 
 // The decoders' chunk loop with the speckle filter fused in: decode_chunk(worker, begin, n)
