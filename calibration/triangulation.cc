@@ -154,20 +154,6 @@ cv::Mat PlaneTable(const cv::Mat& extended, int margin, int width, int height, b
   return planes;
 }
 
-// Colour of camera pixel (x, y) as RGB from a grey or BGR image.
-Color3ub PixelColor(const cv::Mat& white, int x, int y) {
-  if (white.type() == CV_8UC3) {
-    const cv::Vec3b bgr = white.at<cv::Vec3b>(y, x);
-    return Color3ub(bgr[2], bgr[1], bgr[0]);
-  }
-  if (white.type() == CV_16UC1) {
-    const uint8_t grey = static_cast<uint8_t>(white.at<uint16_t>(y, x) >> 8);
-    return Color3ub(grey, grey, grey);
-  }
-  const uint8_t grey = white.at<uint8_t>(y, x);
-  return Color3ub(grey, grey, grey);
-}
-
 }  // namespace
 
 std::string ToString(TriangulationMethod method) {
@@ -215,206 +201,6 @@ size_t Triangulator::TableBytes() const {
          bytes(row_planes_);
 }
 
-Eigen::Vector2d Triangulator::CameraRay(int x, int y) const {
-  const cv::Vec2f ray = camera_rays_.at<cv::Vec2f>(y, x);
-  return Eigen::Vector2d(ray[0], ray[1]);
-}
-
-Eigen::Vector2d Triangulator::ProjectorRay(double proj_x, double proj_y) const {
-  const int width = projector_rays_.cols, height = projector_rays_.rows;
-  if (!(proj_x >= 0 && proj_y >= 0 && proj_x <= width - 1 && proj_y <= height - 1)) {
-    return calibration_.projector.CamFromImage(Eigen::Vector2d(proj_x, proj_y));
-  }
-  // Bilinear interpolation in the table of undistorted pixel centres.
-  const int x0 = std::min(static_cast<int>(proj_x), width - 2 < 0 ? 0 : width - 2);
-  const int y0 = std::min(static_cast<int>(proj_y), height - 2 < 0 ? 0 : height - 2);
-  const int x1 = std::min(x0 + 1, width - 1), y1 = std::min(y0 + 1, height - 1);
-  const double fx = proj_x - x0, fy = proj_y - y0;
-  const cv::Vec2f a = projector_rays_.at<cv::Vec2f>(y0, x0);
-  const cv::Vec2f b = projector_rays_.at<cv::Vec2f>(y0, x1);
-  const cv::Vec2f c = projector_rays_.at<cv::Vec2f>(y1, x0);
-  const cv::Vec2f d = projector_rays_.at<cv::Vec2f>(y1, x1);
-  Eigen::Vector2d ray;
-  for (int k = 0; k < 2; ++k) {
-    ray[k] = (1 - fy) * ((1 - fx) * a[k] + fx * b[k]) + fy * ((1 - fx) * c[k] + fx * d[k]);
-  }
-  return ray;
-}
-
-std::optional<Eigen::Vector3d> Triangulator::Intersect(const Eigen::Vector2d& camera_ray,
-                                                       double proj_x, double proj_y) const {
-  const Eigen::Vector3d camera_direction = camera_ray.homogeneous();
-  const bool has_x = std::isfinite(proj_x), has_y = std::isfinite(proj_y);
-  if (!has_x && !has_y) return std::nullopt;
-  Eigen::Vector3d point_in_cam;
-  if (has_x && has_y) {
-    const Eigen::Vector3d projector_direction =
-        cam_from_proj_rotation_ * ProjectorRay(proj_x, proj_y).homogeneous();
-    if (options_.method == TriangulationMethod::kMidpoint) {
-      // Closest approach of X = s·d_c and X = C_p + u·d_p; the midpoint of the segment.
-      const Eigen::Vector3d& c = projector_center_in_cam_;
-      const double a = camera_direction.dot(camera_direction);
-      const double b = camera_direction.dot(projector_direction);
-      const double e = projector_direction.dot(projector_direction);
-      const double denominator = a * e - b * b;
-      if (std::abs(denominator) < 1e-12 * a * e) return std::nullopt;
-      const double dc = camera_direction.dot(c), dp = projector_direction.dot(c);
-      const double s = (dc * e - b * dp) / denominator;
-      const double u = (b * dc - a * dp) / denominator;
-      point_in_cam = 0.5 * (s * camera_direction + (c + u * projector_direction));
-    } else {
-      // Linear least squares (thesis eq. 4.1): x_n·P3 − P1 = 0 etc. for both devices in
-      // normalised coordinates, camera P = [I|0], projector P = [R|t]; solved for the
-      // inhomogeneous point.
-      const Eigen::Vector2d projector_ray = ProjectorRay(proj_x, proj_y);
-      const Eigen::Matrix3d& r = calibration_.proj_from_cam.rotation;
-      const Eigen::Vector3d& t = calibration_.proj_from_cam.translation;
-      Eigen::Matrix<double, 4, 3> a;
-      Eigen::Vector4d b;
-      a.row(0) << -1, 0, camera_ray.x();
-      a.row(1) << 0, -1, camera_ray.y();
-      b(0) = 0;
-      b(1) = 0;
-      a.row(2) = projector_ray.x() * r.row(2) - r.row(0);
-      a.row(3) = projector_ray.y() * r.row(2) - r.row(1);
-      b(2) = t.x() - projector_ray.x() * t.z();
-      b(3) = t.y() - projector_ray.y() * t.z();
-      point_in_cam = (a.transpose() * a).ldlt().solve(a.transpose() * b);
-    }
-    if (options_.max_reprojection_px > 0) {
-      const Eigen::Vector3d point_in_proj = calibration_.proj_from_cam * point_in_cam;
-      if (point_in_proj.z() <= 0) return std::nullopt;
-      const Eigen::Vector2d reprojected = calibration_.projector.ImageFromCam(point_in_proj);
-      if ((reprojected - Eigen::Vector2d(proj_x, proj_y)).norm() > options_.max_reprojection_px) {
-        return std::nullopt;
-      }
-    }
-  } else {
-    // Ray–plane: the camera ray meets the light plane of one projector column (row). With
-    // lens distortion the "plane" is curved, so it is linearised around the row (column)
-    // where the point lands and re-linearised until that stops moving.
-    const CameraModel& projector = calibration_.projector;
-    double other = has_x ? projector.cy() : projector.cx();
-    constexpr int kMaxIterations = 5;
-    constexpr double kHalfSpanPx = kPlaneHalfSpanPx;
-    bool found = false;
-    for (int iteration = 0; iteration < kMaxIterations; ++iteration) {
-      Eigen::Vector3d ray_a, ray_b;
-      if (has_x) {
-        ray_a = ProjectorRay(proj_x, other - kHalfSpanPx).homogeneous();
-        ray_b = ProjectorRay(proj_x, other + kHalfSpanPx).homogeneous();
-      } else {
-        ray_a = ProjectorRay(other - kHalfSpanPx, proj_y).homogeneous();
-        ray_b = ProjectorRay(other + kHalfSpanPx, proj_y).homogeneous();
-      }
-      const Eigen::Vector3d normal_in_cam = cam_from_proj_rotation_ * ray_a.cross(ray_b);
-      const double denominator = normal_in_cam.dot(camera_direction);
-      if (std::abs(denominator) < 1e-12 * normal_in_cam.norm()) return std::nullopt;
-      const double s = normal_in_cam.dot(projector_center_in_cam_) / denominator;
-      point_in_cam = s * camera_direction;
-      const Eigen::Vector3d point_in_proj = calibration_.proj_from_cam * point_in_cam;
-      if (point_in_proj.z() <= 0) return std::nullopt;
-      const Eigen::Vector2d landed = projector.ImageFromCam(point_in_proj);
-      const double next = has_x ? landed.y() : landed.x();
-      found = true;
-      if (!std::isfinite(next)) return std::nullopt;
-      if (std::abs(next - other) < 1e-3) break;
-      other = next;
-    }
-    if (!found) return std::nullopt;
-  }
-  if (!(point_in_cam.z() >= options_.min_depth && point_in_cam.z() <= options_.max_depth)) {
-    return std::nullopt;
-  }
-  return point_in_cam;
-}
-
-std::optional<Eigen::Vector3d> Triangulator::TriangulatePixel(
-    const Eigen::Vector2d& camera_pixel, double proj_x, double proj_y) const {
-  return Intersect(calibration_.camera.CamFromImage(camera_pixel), proj_x, proj_y);
-}
-
-namespace {
-
-void CheckInputs(const RigCalibration& calibration, const CorrespondenceMap& map,
-                 const cv::Mat& white) {
-  const CameraModel& camera = calibration.camera;
-  SOPE_CHECK(!map.mask.empty(), "correspondence map is empty");
-  SOPE_CHECK(map.width() == camera.width && map.height() == camera.height,
-             "correspondence map is {}x{} but the calibration's camera is {}x{}", map.width(),
-             map.height(), camera.width, camera.height);
-  SOPE_CHECK(map.projector_width == calibration.projector.width &&
-                 map.projector_height == calibration.projector.height,
-             "frames were coded for a {}x{} projector but the calibration's projector is {}x{}",
-             map.projector_width, map.projector_height, calibration.projector.width,
-             calibration.projector.height);
-  SOPE_CHECK(white.empty() || (white.cols == camera.width && white.rows == camera.height),
-             "white image is {}x{}, camera is {}x{}", white.cols, white.rows, camera.width,
-             camera.height);
-  SOPE_CHECK(white.empty() || white.type() == CV_8UC1 || white.type() == CV_8UC3 ||
-                 white.type() == CV_16UC1,
-             "white image must be 8-bit grey/BGR or 16-bit grey");
-}
-
-}  // namespace
-
-TriangulationResult Triangulator::TriangulateExact(const CorrespondenceMap& map,
-                                                   const cv::Mat& white) const {
-  CheckInputs(calibration_, map, white);
-  const CameraModel& camera = calibration_.camera;
-  const int height = camera.height, width = camera.width;
-  TriangulationResult result;
-  result.depth = cv::Mat(height, width, CV_32FC1,
-                         cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
-  // Rows are triangulated independently (in parallel when asked) and concatenated in row
-  // order, so the output is the same for any thread count.
-  std::vector<PointCloud> row_clouds(height);
-  std::vector<std::vector<cv::Point>> row_pixels(height);
-  std::vector<size_t> row_rejected(height, 0);
-  const float kNaN = std::numeric_limits<float>::quiet_NaN();
-  auto triangulate_rows = [&](const cv::Range& rows) {
-    for (int y = rows.start; y < rows.end; ++y) {
-      const uint8_t* mask = map.mask.ptr<uint8_t>(y);
-      const float* proj_x = map.HasX() ? map.proj_x.ptr<float>(y) : nullptr;
-      const float* proj_y = map.HasY() ? map.proj_y.ptr<float>(y) : nullptr;
-      float* depth = result.depth.ptr<float>(y);
-      for (int x = 0; x < width; ++x) {
-        if (mask[x] == 0) continue;
-        const std::optional<Eigen::Vector3d> point = Intersect(
-            CameraRay(x, y), proj_x ? proj_x[x] : kNaN, proj_y ? proj_y[x] : kNaN);
-        if (!point) {
-          ++row_rejected[y];
-          continue;
-        }
-        depth[x] = static_cast<float>(point->z());
-        row_clouds[y].points.push_back(point->cast<float>());
-        if (!white.empty()) row_clouds[y].colors.push_back(PixelColor(white, x, y));
-        row_pixels[y].emplace_back(x, y);
-      }
-    }
-  };
-  if (options_.num_threads > 1) {
-    const int previous = cv::getNumThreads();
-    cv::setNumThreads(options_.num_threads);
-    cv::parallel_for_(cv::Range(0, height), triangulate_rows);
-    cv::setNumThreads(previous);
-  } else {
-    triangulate_rows(cv::Range(0, height));
-  }
-  size_t total = 0;
-  for (const PointCloud& row : row_clouds) total += row.size();
-  result.cloud.points.reserve(total);
-  if (!white.empty()) result.cloud.colors.reserve(total);
-  result.pixels.reserve(total);
-  for (int y = 0; y < height; ++y) {
-    const PointCloud& row = row_clouds[y];
-    result.cloud.points.insert(result.cloud.points.end(), row.points.begin(), row.points.end());
-    result.cloud.colors.insert(result.cloud.colors.end(), row.colors.begin(), row.colors.end());
-    result.pixels.insert(result.pixels.end(), row_pixels[y].begin(), row_pixels[y].end());
-    result.rejected += row_rejected[y];
-  }
-  return result;
-}
 
 namespace {
 
@@ -519,14 +305,16 @@ void Interpolate(const Grid& grid_in, int n, const T* __restrict u_in,
   float* __restrict fv = w->frac_v;
   int32_t* __restrict index = w->index;
   const int last_x = grid.width - 2, last_y = grid.height - 2;
+  // In T (float coordinates: twice the lanes; u − ⌊u⌋ is exact in float).
+  const T max_u = static_cast<T>(grid.max_u), max_v = static_cast<T>(grid.max_v);
   for (int i = 0; i < n; ++i) {
-    const double u0 = static_cast<double>(u_in[i]), v0 = static_cast<double>(v_in[i]);
-    const bool in = (u0 >= 0) & (v0 >= 0) & (u0 <= grid.max_u) & (v0 <= grid.max_v);
-    const double u = in ? u0 : 0.0, v = in ? v0 : 0.0;
+    const T u0 = u_in[i], v0 = v_in[i];
+    const bool in = (u0 >= 0) & (v0 >= 0) & (u0 <= max_u) & (v0 <= max_v);
+    const T u = in ? u0 : T(0), v = in ? v0 : T(0);
     const int32_t x0 = std::min(static_cast<int32_t>(u), last_x);
     const int32_t y0 = std::min(static_cast<int32_t>(v), last_y);
-    fu[i] = static_cast<float>(u - x0);
-    fv[i] = static_cast<float>(v - y0);
+    fu[i] = static_cast<float>(u - static_cast<T>(x0));
+    fv[i] = static_cast<float>(v - static_cast<T>(y0));
     index[i] = y0 * grid.stride + 2 * x0;
     inside[i] = in;
   }
@@ -585,7 +373,53 @@ void TwoAxisKernel(int n, const float* __restrict ray_x, const float* __restrict
   double* __restrict point_y = w->q_y;
   double* __restrict point_z = w->q_z;
   uint8_t* __restrict good = w->good;
-  if constexpr (!kLinear) {
+  if constexpr (!kLinear && kReproject) {
+    // The midpoint and its reprojection in one loop, with one division: the point scaled
+    // by the denominator D = a·e − b² is X' = ½(S·d_c + D·C_p + U·d_p) (S, U the
+    // numerators of s, u) and its projector depth z' = r₃·X' + D·t_z = D·z_p; with
+    // q = 1/(D·z'), 1/D = z'·q and 1/z' = D·q, so X = X'·z'·q and the normalised
+    // projector coordinates are (r₁·X' + D·t_x)·D·q etc. (z_p > 0 ⇔ D·z' > 0).
+    const double c0 = pose.center_in_cam[0], c1 = pose.center_in_cam[1],
+                 c2 = pose.center_in_cam[2];
+    const Lens lens = lens_in;
+    const double max_px2 = max_px * max_px;
+    for (int i = 0; i < n; ++i) {
+      const double dcx = ray_x[i], dcy = ray_y[i];
+      const double ux = proj_ray_x[i], uy = proj_ray_y[i];
+      const double dpx = r00 * ux + r10 * uy + r20;
+      const double dpy = r01 * ux + r11 * uy + r21;
+      const double dpz = r02 * ux + r12 * uy + r22;
+      const double a = dcx * dcx + dcy * dcy + 1.0;
+      const double b = dcx * dpx + dcy * dpy + dpz;
+      const double e = dpx * dpx + dpy * dpy + dpz * dpz;
+      const double denominator = a * e - b * b;
+      const double dc = dcx * c0 + dcy * c1 + c2;
+      const double dp = dpx * c0 + dpy * c1 + dpz * c2;
+      const double s = dc * e - b * dp;
+      const double u = b * dc - a * dp;
+      const double px = 0.5 * (s * dcx + (denominator * c0 + u * dpx));
+      const double py = 0.5 * (s * dcy + (denominator * c1 + u * dpy));
+      const double pz = 0.5 * (s + (denominator * c2 + u * dpz));
+      const double xq = r00 * px + r01 * py + r02 * pz + tx * denominator;
+      const double yq = r10 * px + r11 * py + r12 * pz + ty * denominator;
+      const double zq = r20 * px + r21 * py + r22 * pz + tz * denominator;
+      const double dz = denominator * zq;
+      const double q = 1.0 / dz;
+      const double to_point = zq * q, to_normalised = denominator * q;
+      double xd, yd;
+      DistortPoint<kRational>(lens, xq * to_normalised, yq * to_normalised, &xd, &yd);
+      const double ex = lens.fx * xd + lens.cx - coded_u[i];
+      const double ey = lens.fy * yd + lens.cy - coded_v[i];
+      const double z = pz * to_point;
+      const bool accept = (std::abs(denominator) >= 1e-12 * a * e) & (dz > 0) &
+                          !(ex * ex + ey * ey > max_px2);
+      out_x[i] = static_cast<float>(px * to_point);
+      out_y[i] = static_cast<float>(py * to_point);
+      out_z[i] = static_cast<float>(z);
+      ok[i] = accept & (z >= min_depth) & (z <= max_depth);
+    }
+    return;
+  } else if constexpr (!kLinear) {
     const double c0 = pose.center_in_cam[0], c1 = pose.center_in_cam[1],
                  c2 = pose.center_in_cam[2];
     for (int i = 0; i < n; ++i) {
@@ -960,7 +794,7 @@ TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map,
 
 TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map, const cv::Mat& white,
                                               const TriangulationRegion& region) const {
-  CheckInputs(calibration_, map, white);
+  triangulation_rows::CheckInputs(calibration_, map, white);
   const CameraModel& camera = calibration_.camera;
   const int height = camera.height, width = camera.width;
   SOPE_CHECK(region.mask.empty() || (region.mask.type() == CV_8UC1 &&

@@ -1,7 +1,8 @@
-// Internal to calibration/triangulation.cc: the per-row front and back ends of the fast
-// path — picking a camera row's candidate pixels (mask ∧ region) together with their
-// camera rays and decoded coordinates as contiguous arrays, and writing the accepted
-// points, their pixels and the row of the depth image back out in row order.
+// Internal to calibration/triangulation.cc and triangulation_exact.cc: the per-row front
+// and back ends of the fast path — picking a camera row's candidate pixels (mask ∧ region)
+// together with their camera rays and decoded coordinates as contiguous arrays, and writing
+// the accepted points, their pixels and the row of the depth image back out in row order —
+// and the input checks both paths share.
 //
 // Both are compaction (a data-dependent number of outputs per input), which GCC does not
 // vectorise: with AVX-512 (F, BW, VL) they use its compress / expand instructions, 16
@@ -13,7 +14,11 @@
 #include <limits>
 
 #include <Eigen/Core>
+#include <opencv2/core/mat.hpp>
 #include <opencv2/core/types.hpp>
+
+#include "core/rig_calibration.h"
+#include "decoder/decoder.h"
 
 #if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
 #include <immintrin.h>
@@ -23,6 +28,11 @@
 #endif
 
 namespace sope::triangulation_rows {
+
+// Throws sope::Error when the map (or the white image, when not empty) disagrees with the
+// calibration in camera or projector size, or the white image's type is not supported.
+void CheckInputs(const RigCalibration& calibration, const CorrespondenceMap& map,
+                 const cv::Mat& white);
 
 // Extra entries every output array of SelectCandidates needs past the row's width (a step
 // stores 16 lanes whatever it keeps).
