@@ -57,6 +57,26 @@ struct RowInputs {
 };
 
 #if SOPE_TRIANGULATION_AVX512
+// EmitRow's permutations from three registers of 16 x, y and z values to 48 interleaved
+// floats: output float f of a group is component f % 3 of point f / 3 — in register v,
+// lane l: pick_xy[v][l] from (x, y) (y as index 16 + point) or, where is_z[v] has bit l,
+// pick_z[v][l] from z.
+struct InterleaveTables {
+  alignas(64) int32_t pick_xy[3][16] = {};
+  alignas(64) int32_t pick_z[3][16] = {};
+  __mmask16 is_z[3] = {};
+  constexpr InterleaveTables() {
+    for (int v = 0; v < 3; ++v) {
+      for (int lane = 0; lane < 16; ++lane) {
+        const int f = 16 * v + lane, point = f / 3, component = f % 3;
+        pick_xy[v][lane] = component == 1 ? 16 + point : point;
+        pick_z[v][lane] = point;
+        if (component == 2) is_z[v] = static_cast<__mmask16>(is_z[v] | (1u << lane));
+      }
+    }
+  }
+};
+
 // The candidates (mask ∧ region) among the pixels x … x + 15 that `tail` keeps.
 inline __mmask16 CandidateLanes(const RowInputs& in, int x, __mmask16 tail) {
   const __m128i m = _mm_maskz_loadu_epi8(tail, in.mask + x);
@@ -154,22 +174,14 @@ inline int EmitRow(const RowInputs& in, int y, const int* __restrict xs,
     next += __builtin_popcount(keep);
   }
   // Points and pixels: compress the accepted lanes, interleave to xyz / (x, y).
-  // Output float f of a 48-float group is component f % 3 of point f / 3.
-  alignas(64) int32_t pick_xy[3][16], pick_z[3][16];
-  __mmask16 is_z[3];
-  for (int v = 0; v < 3; ++v) {
-    is_z[v] = 0;
-    for (int lane = 0; lane < 16; ++lane) {
-      const int f = 16 * v + lane, point = f / 3, component = f % 3;
-      pick_xy[v][lane] = component == 1 ? 16 + point : point;  // x from X, y from Y
-      pick_z[v][lane] = point;
-      if (component == 2) is_z[v] = static_cast<__mmask16>(is_z[v] | (1u << lane));
-    }
-  }
-  const __m512i pick_xy0 = _mm512_load_si512(pick_xy[0]), pick_xy1 = _mm512_load_si512(pick_xy[1]),
-                pick_xy2 = _mm512_load_si512(pick_xy[2]);
-  const __m512i pick_z0 = _mm512_load_si512(pick_z[0]), pick_z1 = _mm512_load_si512(pick_z[1]),
-                pick_z2 = _mm512_load_si512(pick_z[2]);
+  static constexpr InterleaveTables kTables{};
+  const __m512i pick_xy0 = _mm512_load_si512(kTables.pick_xy[0]);
+  const __m512i pick_xy1 = _mm512_load_si512(kTables.pick_xy[1]);
+  const __m512i pick_xy2 = _mm512_load_si512(kTables.pick_xy[2]);
+  const __m512i pick_z0 = _mm512_load_si512(kTables.pick_z[0]);
+  const __m512i pick_z1 = _mm512_load_si512(kTables.pick_z[1]);
+  const __m512i pick_z2 = _mm512_load_si512(kTables.pick_z[2]);
+  const __mmask16* is_z = kTables.is_z;
   const __m512i low_pairs = _mm512_setr_epi32(0, 16, 1, 16, 2, 16, 3, 16, 4, 16, 5, 16, 6, 16, 7, 16);
   const __m512i high_pairs =
       _mm512_setr_epi32(8, 16, 9, 16, 10, 16, 11, 16, 12, 16, 13, 16, 14, 16, 15, 16);
