@@ -350,6 +350,32 @@ inline void DistortPoint(const Lens& lens, double x, double y, double* xd, doubl
   *yd = y * radial + lens.p1 * (r2 + 2.0 * y * y) + 2.0 * lens.p2 * x * y;
 }
 
+// The closest approach of the camera ray X = s·d_c, d_c = (x, y, 1), and the projector ray
+// X = C_p + u·d_p, d_p = rᵀ·(ux, uy, 1) (r the projector-from-camera rotation, row-major;
+// C_p the projector centre in the camera frame): d_p, a = d_c·d_c, b = d_c·d_p,
+// e = d_p·d_p, the denominator D = a·e − b² and the numerators of s = S / D and u = U / D.
+struct RayPairConstants {
+  double r00, r01, r02, r10, r11, r12, r20, r21, r22;
+  double c0, c1, c2;
+};
+struct ClosestApproach {
+  double dpx, dpy, dpz, a, e, denominator, s, u;
+  inline ClosestApproach(const RayPairConstants& k, double dcx, double dcy, double ux,
+                         double uy) {
+    dpx = k.r00 * ux + k.r10 * uy + k.r20;
+    dpy = k.r01 * ux + k.r11 * uy + k.r21;
+    dpz = k.r02 * ux + k.r12 * uy + k.r22;
+    a = dcx * dcx + dcy * dcy + 1.0;
+    const double b = dcx * dpx + dcy * dpy + dpz;
+    e = dpx * dpx + dpy * dpy + dpz * dpz;
+    denominator = a * e - b * b;
+    const double dc = dcx * k.c0 + dcy * k.c1 + k.c2;
+    const double dp = dpx * k.c0 + dpy * k.c1 + dpz * k.c2;
+    s = dc * e - b * dp;
+    u = b * dc - a * dp;
+  }
+};
+
 // Both axes coded: the point from the camera ray d_c = (x, y, 1) and the projector ray
 // (ux, uy) by the midpoint of closest approach (X = ½(s·d_c + C_p + u·d_p),
 // d_p = rᵀ·(ux, uy, 1)) or by the 3×3 normal equations of the linear method (thesis eq.
@@ -381,25 +407,16 @@ void TwoAxisKernel(int n, const float* __restrict ray_x, const float* __restrict
     // projector coordinates are (r₁·X' + D·t_x)·D·q etc. (z_p > 0 ⇔ D·z' > 0).
     const double c0 = pose.center_in_cam[0], c1 = pose.center_in_cam[1],
                  c2 = pose.center_in_cam[2];
+    const RayPairConstants rays{r00, r01, r02, r10, r11, r12, r20, r21, r22, c0, c1, c2};
     const Lens lens = lens_in;
     const double max_px2 = max_px * max_px;
     for (int i = 0; i < n; ++i) {
       const double dcx = ray_x[i], dcy = ray_y[i];
-      const double ux = proj_ray_x[i], uy = proj_ray_y[i];
-      const double dpx = r00 * ux + r10 * uy + r20;
-      const double dpy = r01 * ux + r11 * uy + r21;
-      const double dpz = r02 * ux + r12 * uy + r22;
-      const double a = dcx * dcx + dcy * dcy + 1.0;
-      const double b = dcx * dpx + dcy * dpy + dpz;
-      const double e = dpx * dpx + dpy * dpy + dpz * dpz;
-      const double denominator = a * e - b * b;
-      const double dc = dcx * c0 + dcy * c1 + c2;
-      const double dp = dpx * c0 + dpy * c1 + dpz * c2;
-      const double s = dc * e - b * dp;
-      const double u = b * dc - a * dp;
-      const double px = 0.5 * (s * dcx + (denominator * c0 + u * dpx));
-      const double py = 0.5 * (s * dcy + (denominator * c1 + u * dpy));
-      const double pz = 0.5 * (s + (denominator * c2 + u * dpz));
+      const ClosestApproach m(rays, dcx, dcy, proj_ray_x[i], proj_ray_y[i]);
+      const double denominator = m.denominator, a = m.a, e = m.e;
+      const double px = 0.5 * (m.s * dcx + (denominator * c0 + m.u * m.dpx));
+      const double py = 0.5 * (m.s * dcy + (denominator * c1 + m.u * m.dpy));
+      const double pz = 0.5 * (m.s + (denominator * c2 + m.u * m.dpz));
       const double xq = r00 * px + r01 * py + r02 * pz + tx * denominator;
       const double yq = r10 * px + r11 * py + r12 * pz + ty * denominator;
       const double zq = r20 * px + r21 * py + r22 * pz + tz * denominator;
@@ -422,25 +439,16 @@ void TwoAxisKernel(int n, const float* __restrict ray_x, const float* __restrict
   } else if constexpr (!kLinear) {
     const double c0 = pose.center_in_cam[0], c1 = pose.center_in_cam[1],
                  c2 = pose.center_in_cam[2];
+    const RayPairConstants rays{r00, r01, r02, r10, r11, r12, r20, r21, r22, c0, c1, c2};
     for (int i = 0; i < n; ++i) {
       const double dcx = ray_x[i], dcy = ray_y[i];
-      const double ux = proj_ray_x[i], uy = proj_ray_y[i];
-      const double dpx = r00 * ux + r10 * uy + r20;
-      const double dpy = r01 * ux + r11 * uy + r21;
-      const double dpz = r02 * ux + r12 * uy + r22;
-      const double a = dcx * dcx + dcy * dcy + 1.0;
-      const double b = dcx * dpx + dcy * dpy + dpz;
-      const double e = dpx * dpx + dpy * dpy + dpz * dpz;
-      const double denominator = a * e - b * b;
-      const double dc = dcx * c0 + dcy * c1 + c2;
-      const double dp = dpx * c0 + dpy * c1 + dpz * c2;
-      const double inverse = 1.0 / denominator;
-      const double s = (dc * e - b * dp) * inverse;
-      const double u = (b * dc - a * dp) * inverse;
-      point_x[i] = 0.5 * (s * dcx + (c0 + u * dpx));
-      point_y[i] = 0.5 * (s * dcy + (c1 + u * dpy));
-      point_z[i] = 0.5 * (s + (c2 + u * dpz));
-      good[i] = std::abs(denominator) >= 1e-12 * a * e;
+      const ClosestApproach m(rays, dcx, dcy, proj_ray_x[i], proj_ray_y[i]);
+      const double inverse = 1.0 / m.denominator;
+      const double s = m.s * inverse, u = m.u * inverse;
+      point_x[i] = 0.5 * (s * dcx + (c0 + u * m.dpx));
+      point_y[i] = 0.5 * (s * dcy + (c1 + u * m.dpy));
+      point_z[i] = 0.5 * (s + (c2 + u * m.dpz));
+      good[i] = std::abs(m.denominator) >= 1e-12 * m.a * m.e;
     }
   } else {
     for (int i = 0; i < n; ++i) {
