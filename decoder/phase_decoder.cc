@@ -560,6 +560,62 @@ void PrepareOutput(cv::Size size, int type, cv::Mat* image) {
 
 float WrappedAtan2(float y, float x) { return FastWrappedAtan2(y, x); }
 
+namespace {
+
+// Of two one-sided slopes the smaller (0 when they disagree in sign; a NaN one — no
+// neighbour on that side — yields the other).
+// Branch-free (selects only), so that the row loop below vectorises.
+inline float Minmod(float a, float b) {
+  const bool no_a = std::isnan(a), no_b = std::isnan(b);
+  const float smaller = std::abs(a) < std::abs(b) ? a : b;
+  const float agreed = (a > 0.0f) != (b > 0.0f) ? 0.0f : smaller;
+  return no_a ? (no_b ? 0.0f : b) : (no_b ? a : agreed);
+}
+
+// FitCoordinatesLocally's common case with a radius of 1, for the pixels x ∈ [1, cols − 1)
+// of a row that has rows above and below (m0/u0 above, m1/u1 the row, m2/u2 below;
+// `confidence` the row's or nullptr): the pixel and its 8 neighbours valid, all 9 within
+// the tolerance of the minmod-slope prediction and then of the plane fitted to them (its
+// centre value the window's mean). ok[x] says whether it applies, value[x] is then the
+// coordinate. The same float operations as the per-pixel code — the same results — as a
+// loop over the row that GCC vectorises.
+template <bool kConfidence>
+void FitFullWindowsOfRow(const uint8_t* m0, const uint8_t* m1, const uint8_t* m2,
+                         const float* u0, const float* u1, const float* u2,
+                         const float* confidence, float min_tolerance, float sigmas, int cols,
+                         float* __restrict value, uint8_t* __restrict ok) {
+  for (int x = 1; x + 1 < cols; ++x) {
+    const bool window = (m1[x] != 0) & ((m0[x - 1] & m0[x] & m0[x + 1] & m1[x - 1] & m1[x + 1] &
+                                         m2[x - 1] & m2[x] & m2[x + 1]) != 0);
+    const float centre = u1[x];
+    const float tolerance =
+        kConfidence ? std::max(min_tolerance, sigmas / confidence[x]) : min_tolerance;
+    const float slope_x = Minmod((u1[x + 1] - centre) * 1.0f, (u1[x - 1] - centre) * -1.0f);
+    const float slope_y = Minmod((u2[x] - centre) * 1.0f, (u0[x] - centre) * -1.0f);
+    const float d[9] = {u0[x - 1] - centre, u0[x] - centre, u0[x + 1] - centre,
+                        u1[x - 1] - centre, 0.0f, u1[x + 1] - centre,
+                        u2[x - 1] - centre, u2[x] - centre, u2[x + 1] - centre};
+    bool all_in = true;
+    float sum = 0.0f, sum_x = 0.0f, sum_y = 0.0f;
+    for (int k = 0; k < 9; ++k) {
+      const float dx = static_cast<float>(k % 3 - 1), dy = static_cast<float>(k / 3 - 1);
+      all_in &= std::abs(d[k] - slope_x * dx - slope_y * dy) <= tolerance;
+      sum += d[k];
+      sum_x += dx * d[k];
+      sum_y += dy * d[k];
+    }
+    const float a = sum / 9.0f, b = sum_x / 6.0f, c = sum_y / 6.0f;
+    for (int k = 0; k < 9; ++k) {
+      const float dx = static_cast<float>(k % 3 - 1), dy = static_cast<float>(k / 3 - 1);
+      all_in &= std::abs(d[k] - a - b * dx - c * dy) <= tolerance;
+    }
+    ok[x] = window & all_in;
+    value[x] = centre + a;
+  }
+}
+
+}  // namespace
+
 void FitCoordinatesLocally(const PhaseDecoderOptions& options, const cv::Mat& mask,
                            const cv::Mat& confidence, double noise_scale, cv::Mat* coordinate,
                            int num_threads) {
@@ -571,12 +627,27 @@ void FitCoordinatesLocally(const PhaseDecoderOptions& options, const cv::Mat& ma
   const int window = (2 * r + 1) * (2 * r + 1);
   const auto fit_rows = [&](const cv::Range& range) {
     std::vector<float> dxs(window), dys(window), us(window);
+    std::vector<float> full_value(cols);
+    std::vector<uint8_t> full_ok(cols, 0);
     for (int y = range.start; y < range.end; ++y) {
       const uint8_t* valid = mask.ptr<uint8_t>(y);
       const float* centre_row = raw.ptr<float>(y);
       float* out = coordinate->ptr<float>(y);
+      // The common case first, for the whole row: a 3×3 window all on the surface.
+      const bool full_windows = r == 1 && y > 0 && y + 1 < rows && cols >= 3;
+      if (full_windows) {
+        const auto fit = confidence.empty() ? FitFullWindowsOfRow<false> : FitFullWindowsOfRow<true>;
+        fit(mask.ptr<uint8_t>(y - 1), valid, mask.ptr<uint8_t>(y + 1), raw.ptr<float>(y - 1),
+            centre_row, raw.ptr<float>(y + 1),
+            confidence.empty() ? nullptr : confidence.ptr<float>(y), min_tolerance, sigmas, cols,
+            full_value.data(), full_ok.data());
+      }
       for (int x = 0; x < cols; ++x) {
         if (valid[x] == 0) continue;
+        if (full_windows && x > 0 && x + 1 < cols && full_ok[x] != 0) {
+          out[x] = full_value[x];
+          continue;
+        }
         const float centre = centre_row[x];
         const float tolerance =
             confidence.empty() ? min_tolerance
@@ -591,48 +662,8 @@ void FitCoordinatesLocally(const PhaseDecoderOptions& options, const cv::Mat& ma
           }
           return (raw.at<float>(ny, nx) - centre) * static_cast<float>(dx + dy);
         };
-        const auto minmod = [](float a, float b) {
-          if (std::isnan(a)) return std::isnan(b) ? 0.0f : b;
-          if (std::isnan(b)) return a;
-          if ((a > 0.0f) != (b > 0.0f)) return 0.0f;
-          return std::abs(a) < std::abs(b) ? a : b;
-        };
-        const float slope_x = minmod(one_sided(1, 0), one_sided(-1, 0));
-        const float slope_y = minmod(one_sided(0, 1), one_sided(0, -1));
-        // The common case first: a 3×3 window all on the surface, where the plane's centre
-        // value is the window's mean and its slopes Σdx·u/6, Σdy·u/6.
-        if (r == 1 && x > 0 && x + 1 < cols && y > 0 && y + 1 < rows) {
-          const uint8_t* m0 = mask.ptr<uint8_t>(y - 1);
-          const uint8_t* m2 = mask.ptr<uint8_t>(y + 1);
-          if ((m0[x - 1] & m0[x] & m0[x + 1] & valid[x - 1] & valid[x + 1] & m2[x - 1] & m2[x] &
-               m2[x + 1]) != 0) {
-            const float* u0 = raw.ptr<float>(y - 1);
-            const float* u2 = raw.ptr<float>(y + 1);
-            const float d[9] = {u0[x - 1] - centre, u0[x] - centre, u0[x + 1] - centre,
-                                centre_row[x - 1] - centre, 0.0f, centre_row[x + 1] - centre,
-                                u2[x - 1] - centre, u2[x] - centre, u2[x + 1] - centre};
-            bool all_in = true;
-            float sum = 0.0f, sum_x = 0.0f, sum_y = 0.0f;
-            for (int k = 0; k < 9; ++k) {
-              const float dx = static_cast<float>(k % 3 - 1), dy = static_cast<float>(k / 3 - 1);
-              all_in &= std::abs(d[k] - slope_x * dx - slope_y * dy) <= tolerance;
-              sum += d[k];
-              sum_x += dx * d[k];
-              sum_y += dy * d[k];
-            }
-            if (all_in) {
-              const float a = sum / 9.0f, b = sum_x / 6.0f, c = sum_y / 6.0f;
-              for (int k = 0; k < 9; ++k) {
-                const float dx = static_cast<float>(k % 3 - 1), dy = static_cast<float>(k / 3 - 1);
-                all_in &= std::abs(d[k] - a - b * dx - c * dy) <= tolerance;
-              }
-              if (all_in) {
-                out[x] = centre + a;
-                continue;
-              }
-            }
-          }
-        }
+        const float slope_x = Minmod(one_sided(1, 0), one_sided(-1, 0));
+        const float slope_y = Minmod(one_sided(0, 1), one_sided(0, -1));
         int n = 0;
         for (int dy = -r; dy <= r; ++dy) {
           const int ny = y + dy;
