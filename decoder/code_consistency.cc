@@ -196,12 +196,23 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     }
   });
   const auto contrast_at = [&](int x, int y) { return contrast_image.at<float>(y, x); };
+  // A pixel's decision reads only the map around it as it was before the pass (and its
+  // own, fixed, frames): each pass decides from the unchanged map and its fills are
+  // written after it, and a later pass looks only at the pixels within the window of a
+  // pixel filled by the pass before — the others would see the same neighbours as before
+  // and decide as before. The same fills as re-deciding every pixel in every pass.
+  struct Fill {
+    int x = 0, y = 0;
+    float coordinate[2] = {kNaN, kNaN};
+    float confidence = 0.0f;
+  };
+  // Pixels to decide in the current pass (after the first): non-zero = near a new fill.
+  cv::Mat near_fill;
   for (int pass = 0; pass < options.consistency.passes; ++pass) {
-    // Decided from the map as it was before this pass (rows in parallel, no order effects).
-    const cv::Mat mask_before = map->mask.clone();
-    const cv::Mat x_before = map->HasX() ? map->proj_x.clone() : cv::Mat();
-    const cv::Mat y_before = map->HasY() ? map->proj_y.clone() : cv::Mat();
-    std::vector<int> filled_per_row(rows, 0);
+    const cv::Mat& mask_before = map->mask;
+    const cv::Mat& x_before = map->proj_x;
+    const cv::Mat& y_before = map->proj_y;
+    std::vector<std::vector<Fill>> fills_per_row(rows);
     // fn(dx, dy) for the pixels of the window around (x, y) decoded before this pass.
     const auto for_each_decoded_neighbour = [&](int x, int y, const auto& fn) {
       for (int dy = -radius; dy <= radius; ++dy) {
@@ -217,7 +228,9 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       std::vector<float> margins;
       std::vector<cv::Vec3f> samples;
       for (int y = range.start; y < range.end; ++y) {
+        const uint8_t* near_row = near_fill.empty() ? nullptr : near_fill.ptr<uint8_t>(y);
         for (int x = 0; x < cols; ++x) {
+          if (near_row != nullptr && near_row[x] == 0) continue;
           if (mask_before.at<uint8_t>(y, x)) continue;
           const float contrast = contrast_at(x, y);
           if (!(contrast >= options.consistency.min_contrast)) continue;
@@ -289,21 +302,35 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
             ok = std::isfinite(choices[a].coordinate);
           }
           if (!ok) continue;
-          float confidence = 1.0f;
+          Fill fill;
+          fill.x = x;
+          fill.y = y;
+          fill.confidence = 1.0f;
           for (size_t a = 0; a < axes.size(); ++a) {
-            (axes[a].axis == PatternAxis::kX ? map->proj_x : map->proj_y).at<float>(y, x) =
-                choices[a].coordinate;
-            confidence = std::min(confidence, choices[a].confidence);
+            fill.coordinate[a] = choices[a].coordinate;
+            fill.confidence = std::min(fill.confidence, choices[a].confidence);
           }
-          map->mask.at<uint8_t>(y, x) = 255;
-          map->confidence.at<float>(y, x) = confidence;
-          ++filled_per_row[y];
+          fills_per_row[y].push_back(fill);
         }
       }
     });
     int filled = 0;
-    for (int count : filled_per_row) filled += count;
+    cv::Mat next_near = cv::Mat::zeros(rows, cols, CV_8UC1);
+    for (const std::vector<Fill>& row_fills : fills_per_row) {
+      for (const Fill& fill : row_fills) {
+        for (size_t a = 0; a < axes.size(); ++a) {
+          (axes[a].axis == PatternAxis::kX ? map->proj_x : map->proj_y)
+              .at<float>(fill.y, fill.x) = fill.coordinate[a];
+        }
+        map->mask.at<uint8_t>(fill.y, fill.x) = 255;
+        map->confidence.at<float>(fill.y, fill.x) = fill.confidence;
+        const cv::Rect window(fill.x - radius, fill.y - radius, 2 * radius + 1, 2 * radius + 1);
+        next_near(window & cv::Rect(0, 0, cols, rows)).setTo(1);
+        ++filled;
+      }
+    }
     if (filled == 0) break;
+    near_fill = next_near;
   }
 }
 
