@@ -44,22 +44,84 @@ inline float Margin(const AxisFrames& axis, size_t k, const cv::Mat* white, cons
 // window stays well inside one stripe, so averaging removes noise without mixing stripes
 // except within a quarter stripe of an edge (where the pixel is between two neighbouring
 // blocks anyway).
-void Margins(const AxisFrames& axis, const cv::Mat* white, const cv::Mat* black, int x, int y,
-             float gradient, int max_radius, std::vector<float>* margins) {
-  margins->resize(axis.pattern.size());
-  const int rows = axis.pattern[0]->rows, cols = axis.pattern[0]->cols;
-  for (size_t k = 0; k < axis.pattern.size(); ++k) {
-    const float stripe = static_cast<float>(1 << (k + axis.lowest)) / std::max(gradient, 1e-3f);
-    const int radius = std::min(max_radius, static_cast<int>(stripe / 4.0f));
-    float sum = 0.0f;
-    int count = 0;
-    for (int yy = std::max(0, y - radius); yy <= std::min(rows - 1, y + radius); ++yy) {
-      for (int xx = std::max(0, x - radius); xx <= std::min(cols - 1, x + radius); ++xx) {
-        sum += Margin(axis, k, white, black, xx, yy);
-        ++count;
+// Σ Margin over the window rows [y0, y1] × columns [x0, x1] for each of the `count` bit
+// indices `bits`, into sums[bits[j]]: each bit's values added in the same row-major order
+// as Margin(…, xx, yy) in a loop over the window, the bits' sums side by side (independent
+// chains of additions), the frames' row pointers read once per row.
+template <typename Pixel>
+void WindowMarginSums(const AxisFrames& axis, const int* bits, int count, const cv::Mat* white,
+                      const cv::Mat* black, int x0, int x1, int y0, int y1, float* sums) {
+  const auto grey = [](Pixel v) {
+    if constexpr (sizeof(Pixel) == 2) {
+      return v / 257.0f;
+    } else {
+      return static_cast<float>(v);
+    }
+  };
+  constexpr int kMaxBits = 32;
+  const Pixel* p[kMaxBits];
+  const Pixel* q[kMaxBits];
+  float sum[kMaxBits];
+  for (int j = 0; j < count; ++j) sum[j] = 0.0f;
+  for (int yy = y0; yy <= y1; ++yy) {
+    bool inverses = true;
+    for (int j = 0; j < count; ++j) {
+      p[j] = axis.pattern[bits[j]]->ptr<Pixel>(yy);
+      q[j] = axis.inverse[bits[j]] ? axis.inverse[bits[j]]->ptr<Pixel>(yy) : nullptr;
+      inverses &= q[j] != nullptr;
+    }
+    if (inverses) {
+      for (int xx = x0; xx <= x1; ++xx) {
+        for (int j = 0; j < count; ++j) sum[j] += grey(p[j][xx]) - grey(q[j][xx]);
+      }
+    } else {
+      const Pixel* w = white->ptr<Pixel>(yy);
+      const Pixel* b = black->ptr<Pixel>(yy);
+      for (int xx = x0; xx <= x1; ++xx) {
+        for (int j = 0; j < count; ++j) {
+          sum[j] += q[j] ? grey(p[j][xx]) - grey(q[j][xx])
+                         : 2.0f * grey(p[j][xx]) - grey(w[xx]) - grey(b[xx]);
+        }
       }
     }
-    (*margins)[k] = sum / static_cast<float>(count);
+  }
+  for (int j = 0; j < count; ++j) sums[bits[j]] = sum[j];
+}
+
+void Margins(const AxisFrames& axis, const cv::Mat* white, const cv::Mat* black, int x, int y,
+             float gradient, int max_radius, std::vector<float>* margins) {
+  const int num_bits = static_cast<int>(axis.pattern.size());
+  SOPE_CHECK(num_bits <= 32, "code consistency: {} bits on an axis (at most 32)", num_bits);
+  margins->resize(num_bits);
+  const int rows = axis.pattern[0]->rows, cols = axis.pattern[0]->cols;
+  const bool sixteen = axis.pattern[0]->depth() == CV_16U;
+  // The bits by the radius of their window (0 … max_radius), each group's sums together.
+  int radius_of[32];
+  for (int k = 0; k < num_bits; ++k) {
+    const float stripe = static_cast<float>(1 << (k + axis.lowest)) / std::max(gradient, 1e-3f);
+    radius_of[k] = std::min(max_radius, static_cast<int>(stripe / 4.0f));
+  }
+  bool grouped[32] = {};
+  for (int first = 0; first < num_bits; ++first) {
+    if (grouped[first]) continue;
+    const int radius = radius_of[first];
+    int bits[32];
+    int count = 0;
+    for (int k = first; k < num_bits; ++k) {
+      if (!grouped[k] && radius_of[k] == radius) {
+        bits[count++] = k;
+        grouped[k] = true;
+      }
+    }
+    const int x0 = std::max(0, x - radius), x1 = std::min(cols - 1, x + radius);
+    const int y0 = std::max(0, y - radius), y1 = std::min(rows - 1, y + radius);
+    if (sixteen) {
+      WindowMarginSums<uint16_t>(axis, bits, count, white, black, x0, x1, y0, y1, margins->data());
+    } else {
+      WindowMarginSums<uint8_t>(axis, bits, count, white, black, x0, x1, y0, y1, margins->data());
+    }
+    const float samples = static_cast<float>((x1 - x0 + 1) * (y1 - y0 + 1));
+    for (int j = 0; j < count; ++j) (*margins)[bits[j]] /= samples;
   }
 }
 
@@ -213,20 +275,22 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     const cv::Mat& x_before = map->proj_x;
     const cv::Mat& y_before = map->proj_y;
     std::vector<std::vector<Fill>> fills_per_row(rows);
-    // fn(dx, dy) for the pixels of the window around (x, y) decoded before this pass.
-    const auto for_each_decoded_neighbour = [&](int x, int y, const auto& fn) {
-      for (int dy = -radius; dy <= radius; ++dy) {
-        const int yy = y + dy;
-        if (yy < 0 || yy >= rows) continue;
-        for (int dx = -radius; dx <= radius; ++dx) {
-          const int xx = x + dx;
-          if (xx >= 0 && xx < cols && mask_before.at<uint8_t>(yy, xx)) fn(dx, dy);
+    // The pixels of the window around (x, y) decoded before this pass, as (dx, dy) in
+    // row-major order (every sum below adds in this order).
+    const auto decoded_neighbours = [&](int x, int y, std::vector<cv::Point>* out) {
+      out->clear();
+      const int x0 = std::max(0, x - radius), x1 = std::min(cols - 1, x + radius);
+      for (int yy = std::max(0, y - radius); yy <= std::min(rows - 1, y + radius); ++yy) {
+        const uint8_t* mask_row = mask_before.ptr<uint8_t>(yy);
+        for (int xx = x0; xx <= x1; ++xx) {
+          if (mask_row[xx]) out->emplace_back(xx - x, yy - y);
         }
       }
     };
     cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
       std::vector<float> margins;
       std::vector<cv::Vec3f> samples;
+      std::vector<cv::Point> neighbours;
       for (int y = range.start; y < range.end; ++y) {
         const uint8_t* near_row = near_fill.empty() ? nullptr : near_fill.ptr<uint8_t>(y);
         for (int x = 0; x < cols; ++x) {
@@ -237,13 +301,14 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
           // Relative to the decoded neighbours': a pixel much darker than the surface
           // around it is at a shadow's edge (partly lit, its code a mixture), whereas a
           // dim, grazing surface darkens smoothly with its neighbours.
+          decoded_neighbours(x, y, &neighbours);
           if (options.consistency.min_relative_contrast > 0.0) {
             float sum = 0.0f;
             int count = 0;
-            for_each_decoded_neighbour(x, y, [&](int dx, int dy) {
-              sum += contrast_at(x + dx, y + dy);
+            for (const cv::Point& d : neighbours) {
+              sum += contrast_at(x + d.x, y + d.y);
               ++count;
-            });
+            }
             if (count > 0 && contrast < options.consistency.min_relative_contrast * sum / count) {
               continue;
             }
@@ -254,17 +319,27 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
             const cv::Mat& before = axes[a].axis == PatternAxis::kX ? x_before : y_before;
             // Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours:
             // the prediction at the pixel and the local gradient.
-            cv::Matx33d normal = cv::Matx33d::zeros();
-            cv::Vec3d rhs(0, 0, 0);
+            // Σ basis·basisᵀ and Σ basis·u, basis = (1, dx, dy), element by element.
+            double n00 = 0, n01 = 0, n02 = 0, n11 = 0, n12 = 0, n22 = 0;
+            double r0 = 0, r1 = 0, r2 = 0;
             samples.clear();
-            for_each_decoded_neighbour(x, y, [&](int dx, int dy) {
-              const double u = before.at<float>(y + dy, x + dx);
-              const cv::Vec3d basis(1.0, dx, dy);
-              normal += basis * basis.t();
-              rhs += basis * u;
+            for (const cv::Point& d : neighbours) {
+              const double u = before.at<float>(y + d.y, x + d.x);
+              const double dx = d.x, dy = d.y;
+              n00 += 1.0;
+              n01 += dx;
+              n02 += dy;
+              n11 += dx * dx;
+              n12 += dx * dy;
+              n22 += dy * dy;
+              r0 += u;
+              r1 += dx * u;
+              r2 += dy * u;
               samples.push_back(
-                  {static_cast<float>(dx), static_cast<float>(dy), static_cast<float>(u)});
-            });
+                  {static_cast<float>(d.x), static_cast<float>(d.y), static_cast<float>(u)});
+            }
+            const cv::Matx33d normal(n00, n01, n02, n01, n11, n12, n02, n12, n22);
+            const cv::Vec3d rhs(r0, r1, r2);
             if (static_cast<int>(samples.size()) < options.consistency.min_neighbours ||
                 cv::determinant(normal) < 1e-6) {
               ok = false;

@@ -1109,6 +1109,9 @@ void DecoderOptions::Check() const {
              "consistency.search_radius_px {} must be > 0", consistency.search_radius_px);
   SOPE_CHECK(std::isfinite(consistency.strong_bit_factor) && consistency.strong_bit_factor >= 1.0,
              "consistency.strong_bit_factor {} must be >= 1", consistency.strong_bit_factor);
+  SOPE_CHECK(consistency.max_average_radius >= 0 && consistency.max_average_radius <= 16,
+             "consistency.max_average_radius {} must be in 0..16",
+             consistency.max_average_radius);
   SOPE_CHECK(consistency.passes >= 1 && consistency.passes <= 100,
              "consistency.passes {} must be in 1..100", consistency.passes);
   phase.Check();

@@ -1172,6 +1172,10 @@ TEST(DecodeErrors, InvalidOptionsAndUndecodableSetsThrow) {
   DecoderOptions bad;
   bad.min_contrast = -3;
   EXPECT_THROW_WITH_MESSAGE(Decode(capture.frame_set, bad), Error, "min_contrast -3");
+  bad = DecoderOptions();
+  bad.consistency.enabled = true;
+  bad.consistency.max_average_radius = -1;
+  EXPECT_THROW_WITH_MESSAGE(Decode(capture.frame_set, bad), Error, "max_average_radius -1");
 
   // Inverses but no white/black: auto and robust decode, threshold cannot.
   SceneOptions scene;
