@@ -13,7 +13,10 @@
 //            RecognitionOptions::ThesisPreset (radius search, no pose refinement);
 //   overlapped — the sope configuration as the live loop runs it: decoded during the
 //            capture (IncrementalDecoder; after the last frame only its bit and the
-//            finish), triangulated on 1 or 2 threads.
+//            finish), triangulated on 1 or 2 threads; with the plain per-pixel decode
+//            (scan_decoder 0) and with the decoder options scans use by default
+//            (scan_decoder 1: sub-pixel stripe edges and code consistency, finished after
+//            the last frame — what `sope scan-and-recognise` runs).
 // Input: 8 scans on the virtual rig (default 1280×720 camera, 1024×768 projector, Gray code
 // x and y with inverses) of unseen procedural instances in random poses before a backdrop,
 // captured through a RigSession once at start-up (not timed). The databases are built at
@@ -34,6 +37,7 @@
 #include <fmt/format.h>
 
 #include "bench/bench_support.h"
+#include "calibration/scan.h"
 #include "core/statistics.h"
 #include "capture/rig_session.h"
 #include "recogniser/database.h"
@@ -186,7 +190,9 @@ void RunLatency(benchmark::State& state, bool thesis, int widen_batch = -1) {
 // it overlaps the capture); timed from the last frame: its AddFrame, Finish, the
 // triangulation (`threads` threads) of the decoded map, segmentation and recognition
 // (sope database + defaults, the pose stages on `pose_threads` threads), as the sope
-// configuration above.
+// configuration above. `scan_decoder` 1: the decoder options scans use by default
+// (ScanOptions: sub-pixel stripe edges and code consistency, on `threads` threads) — the
+// live loop as `sope scan-and-recognise` runs it; 0: the plain per-pixel decode.
 void BM_FrameToResult_Overlapped(benchmark::State& state) {
   const Input& input = GetInput();
   const Database& db = *input.sope_db;
@@ -196,7 +202,10 @@ void BM_FrameToResult_Overlapped(benchmark::State& state) {
   TriangulationOptions triangulation;
   triangulation.num_threads = static_cast<int>(state.range(0));
   const Triangulator triangulator(input.calibration, triangulation);
-  IncrementalDecoder decoder(input.scans.front().frames.manifest);
+  const bool scan_decoder = state.range(2) != 0;
+  DecoderOptions decoder_options = scan_decoder ? ScanOptions().decoder : DecoderOptions();
+  if (scan_decoder) decoder_options.num_threads = triangulation.num_threads;
+  IncrementalDecoder decoder(input.scans.front().frames.manifest, decoder_options);
   LatencySamples samples;
   size_t k = 0;
   for (auto _ : state) {
@@ -221,7 +230,8 @@ void BM_FrameToResult_Overlapped(benchmark::State& state) {
   }
   samples.Report(state);
   state.SetLabel(fmt::format(
-      "sope database + defaults, decoded during capture, {} thread(s), pose stages on {}",
+      "sope database + defaults, decoded during capture{}, {} thread(s), pose stages on {}",
+      scan_decoder ? " with the scan defaults (edges, consistency)" : "",
       triangulation.num_threads, options.threads));
 }
 
@@ -239,10 +249,12 @@ BENCHMARK(BM_FrameToResult_SopeWidenAtOnce)
 // (triangulation threads, pose-stage threads): 1 and 2 cores as before, then 2 cores with
 // the pose screening and refinement on both (RecognitionOptions::threads).
 BENCHMARK(BM_FrameToResult_Overlapped)
-    ->Args({1, 1})
-    ->Args({2, 1})
-    ->Args({2, 2})
-    ->ArgNames({"threads", "pose_threads"})
+    ->Args({1, 1, 0})
+    ->Args({2, 1, 0})
+    ->Args({2, 2, 0})
+    ->Args({1, 1, 1})
+    ->Args({2, 2, 1})
+    ->ArgNames({"threads", "pose_threads", "scan_decoder"})
     ->Iterations(5 * kScans)
     ->UseManualTime()
     ->Unit(benchmark::kMillisecond);

@@ -67,6 +67,29 @@ void BM_Decode(benchmark::State& state) {
 }
 BENCHMARK(BM_Decode)->Unit(benchmark::kMillisecond)->Repetitions(5)->ReportAggregatesOnly(true);
 
+// Decoding with the options scans use by default (ScanOptions: sub-pixel stripe edges,
+// code consistency) beside the plain per-pixel decode above: arguments (edges, consistency).
+void BM_DecodeScanOptions(benchmark::State& state) {
+  const Input& input = GetInput();
+  DecoderOptions options;
+  options.gray_subpixel = state.range(0) != 0 ? GraySubpixel::kEdges : GraySubpixel::kOff;
+  options.consistency.enabled = state.range(1) != 0;
+  CorrespondenceMap map;
+  for (auto _ : state) {
+    Decode(input.frames, options, &map);
+    benchmark::DoNotOptimize(map.mask.data);
+  }
+  state.counters["valid"] = static_cast<double>(cv::countNonZero(map.mask));
+}
+BENCHMARK(BM_DecodeScanOptions)
+    ->ArgsProduct({{0, 1}, {0, 1}})
+    ->ArgNames({"edges", "consistency"})
+    ->MeasureProcessCPUTime()
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime()
+    ->Repetitions(5)
+    ->ReportAggregatesOnly(true);
+
 // The live loop's decode with IncrementalDecoder: frames added as they are captured, so
 // that after the last frame only its bit and the finish remain. Timed: AddFrame(last) +
 // Finish (the last-frame → map latency), beside BM_Decode (the batch decode, all of it

@@ -268,13 +268,14 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     float coordinate[2] = {kNaN, kNaN};
     float confidence = 0.0f;
   };
-  // Pixels to decide in the current pass (after the first): non-zero = near a new fill.
-  cv::Mat near_fill;
+  // The pixels to decide in a pass after the first (undecoded, near a fill of the pass
+  // before), and which pixels are listed (a scratch image, cleared after each pass).
+  std::vector<cv::Point> candidates;
+  cv::Mat listed;
   for (int pass = 0; pass < options.consistency.passes; ++pass) {
     const cv::Mat& mask_before = map->mask;
     const cv::Mat& x_before = map->proj_x;
     const cv::Mat& y_before = map->proj_y;
-    std::vector<std::vector<Fill>> fills_per_row(rows);
     // The pixels of the window around (x, y) decoded before this pass, as (dx, dy) in
     // row-major order (every sum below adds in this order).
     const auto decoded_neighbours = [&](int x, int y, std::vector<cv::Point>* out) {
@@ -287,125 +288,200 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
         }
       }
     };
-    cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
+    // The first pass looks at every pixel: the number of decoded pixels in each window
+    // from an integral image first (most candidates have too few and go no further).
+    cv::Mat decoded_sums;  // (rows + 1) × (cols + 1), CV_32S: decoded pixels above-left
+    if (pass == 0) {
+      decoded_sums = cv::Mat::zeros(rows + 1, cols + 1, CV_32S);
+      for (int y = 0; y < rows; ++y) {
+        const uint8_t* mask_row = mask_before.ptr<uint8_t>(y);
+        const int* above = decoded_sums.ptr<int>(y);
+        int* sums = decoded_sums.ptr<int>(y + 1);
+        int row_sum = 0;
+        for (int x = 0; x < cols; ++x) {
+          row_sum += mask_row[x] != 0;
+          sums[x + 1] = above[x + 1] + row_sum;
+        }
+      }
+    }
+    const auto decoded_in_window = [&](int x, int y) {
+      const int x0 = std::max(0, x - radius), x1 = std::min(cols - 1, x + radius) + 1;
+      const int y0 = std::max(0, y - radius), y1 = std::min(rows - 1, y + radius) + 1;
+      return decoded_sums.at<int>(y1, x1) - decoded_sums.at<int>(y0, x1) -
+             decoded_sums.at<int>(y1, x0) + decoded_sums.at<int>(y0, x0);
+    };
+    // Per thread: the working arrays of one decision.
+    struct Scratch {
       std::vector<float> margins;
       std::vector<cv::Vec3f> samples;
       std::vector<cv::Point> neighbours;
-      for (int y = range.start; y < range.end; ++y) {
-        const uint8_t* near_row = near_fill.empty() ? nullptr : near_fill.ptr<uint8_t>(y);
-        for (int x = 0; x < cols; ++x) {
-          if (near_row != nullptr && near_row[x] == 0) continue;
-          if (mask_before.at<uint8_t>(y, x)) continue;
-          const float contrast = contrast_at(x, y);
-          if (!(contrast >= options.consistency.min_contrast)) continue;
-          // Relative to the decoded neighbours': a pixel much darker than the surface
-          // around it is at a shadow's edge (partly lit, its code a mixture), whereas a
-          // dim, grazing surface darkens smoothly with its neighbours.
-          decoded_neighbours(x, y, &neighbours);
-          if (options.consistency.min_relative_contrast > 0.0) {
-            float sum = 0.0f;
-            int count = 0;
-            for (const cv::Point& d : neighbours) {
-              sum += contrast_at(x + d.x, y + d.y);
-              ++count;
-            }
-            if (count > 0 && contrast < options.consistency.min_relative_contrast * sum / count) {
+    };
+    // Whether the undecoded pixel (x, y) is filled, and with what (*out).
+    const auto decide = [&](int x, int y, Scratch* scratch, Fill* out) -> bool {
+      std::vector<float>& margins = scratch->margins;
+      std::vector<cv::Vec3f>& samples = scratch->samples;
+      std::vector<cv::Point>& neighbours = scratch->neighbours;
+      if (mask_before.at<uint8_t>(y, x)) return false;
+      const float contrast = contrast_at(x, y);
+      if (!(contrast >= options.consistency.min_contrast)) return false;
+      if (!decoded_sums.empty() &&
+          decoded_in_window(x, y) < options.consistency.min_neighbours) {
+        return false;
+      }
+      decoded_neighbours(x, y, &neighbours);
+      // Too few decoded neighbours for the plane fit below (checked first: it rejects
+      // most candidates, and every test here only rejects, so the order is free).
+      if (static_cast<int>(neighbours.size()) < options.consistency.min_neighbours) return false;
+      // Relative to the decoded neighbours': a pixel much darker than the surface
+      // around it is at a shadow's edge (partly lit, its code a mixture), whereas a
+      // dim, grazing surface darkens smoothly with its neighbours.
+      if (options.consistency.min_relative_contrast > 0.0) {
+        float sum = 0.0f;
+        int count = 0;
+        for (const cv::Point& d : neighbours) {
+          sum += contrast_at(x + d.x, y + d.y);
+          ++count;
+        }
+        if (count > 0 && contrast < options.consistency.min_relative_contrast * sum / count) {
+          return false;
+        }
+      }
+      Choice choices[2];
+      bool ok = true;
+      for (size_t a = 0; a < axes.size() && ok; ++a) {
+        const cv::Mat& before = axes[a].axis == PatternAxis::kX ? x_before : y_before;
+        // Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours:
+        // the prediction at the pixel and the local gradient.
+        // Σ basis·basisᵀ and Σ basis·u, basis = (1, dx, dy), element by element.
+        double n00 = 0, n01 = 0, n02 = 0, n11 = 0, n12 = 0, n22 = 0;
+        double r0 = 0, r1 = 0, r2 = 0;
+        samples.clear();
+        for (const cv::Point& d : neighbours) {
+          const double u = before.at<float>(y + d.y, x + d.x);
+          const double dx = d.x, dy = d.y;
+          n00 += 1.0;
+          n01 += dx;
+          n02 += dy;
+          n11 += dx * dx;
+          n12 += dx * dy;
+          n22 += dy * dy;
+          r0 += u;
+          r1 += dx * u;
+          r2 += dy * u;
+          samples.push_back(
+              {static_cast<float>(d.x), static_cast<float>(d.y), static_cast<float>(u)});
+        }
+        const cv::Matx33d normal(n00, n01, n02, n01, n11, n12, n02, n12, n22);
+        const cv::Vec3d rhs(r0, r1, r2);
+        if (static_cast<int>(samples.size()) < options.consistency.min_neighbours ||
+            cv::determinant(normal) < 1e-6) {
+          ok = false;
+          break;
+        }
+        const cv::Vec3d plane = normal.inv() * rhs;
+        double residual = 0.0;
+        for (const cv::Vec3f& sample : samples) {
+          const double r = sample[2] - (plane[0] + plane[1] * sample[0] + plane[2] * sample[1]);
+          residual += r * r;
+        }
+        // Not a smooth surface around the pixel (an edge, another object): no prediction.
+        if (std::sqrt(residual / samples.size()) > options.consistency.max_plane_rms_px) {
+          ok = false;
+          break;
+        }
+        const float predicted = static_cast<float>(plane[0]);
+        // Beyond the projector's outermost pixel centre: the pixel sees the edge of the
+        // projected light (its code is the edge block's only by extrapolation), not a
+        // code — filled, it triangulated to a point off the surface.
+        if (!(predicted >= 0.0f && predicted <= static_cast<float>(axes[a].size - 1))) {
+          ok = false;
+          break;
+        }
+        const float gradient = static_cast<float>(std::hypot(plane[1], plane[2]));
+        // Stripes compressed below the camera's resolution (a surface seen at grazing
+        // incidence): the neighbours cannot bound the code to a pixel.
+        if (!(gradient <= options.consistency.max_gradient)) {
+          ok = false;
+          break;
+        }
+        Margins(axes[a], white, black, x, y, gradient, options.consistency.max_average_radius,
+                &margins);
+        choices[a] = ChooseBlock(axes[a], margins, predicted, contrast, options);
+        ok = std::isfinite(choices[a].coordinate);
+      }
+      if (!ok) return false;
+      Fill& fill = *out;
+      fill.x = x;
+      fill.y = y;
+      fill.confidence = 1.0f;
+      for (size_t a = 0; a < axes.size(); ++a) {
+        fill.coordinate[a] = choices[a].coordinate;
+        fill.confidence = std::min(fill.confidence, choices[a].confidence);
+      }
+      return true;
+    };
+    std::vector<Fill> fills;
+    if (pass == 0) {
+      std::vector<std::vector<Fill>> fills_per_row(rows);
+      cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
+        Scratch scratch;
+        Fill fill;
+        for (int y = range.start; y < range.end; ++y) {
+          const uint8_t* mask_row = mask_before.ptr<uint8_t>(y);
+          const float* contrast_row = contrast_image.ptr<float>(y);
+          for (int x = 0; x < cols; ++x) {
+            // decide's first tests, here where most pixels stop.
+            if (mask_row[x] != 0 || !(contrast_row[x] >= options.consistency.min_contrast) ||
+                decoded_in_window(x, y) < options.consistency.min_neighbours) {
               continue;
             }
+            if (decide(x, y, &scratch, &fill)) fills_per_row[y].push_back(fill);
           }
-          Choice choices[2];
-          bool ok = true;
-          for (size_t a = 0; a < axes.size() && ok; ++a) {
-            const cv::Mat& before = axes[a].axis == PatternAxis::kX ? x_before : y_before;
-            // Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours:
-            // the prediction at the pixel and the local gradient.
-            // Σ basis·basisᵀ and Σ basis·u, basis = (1, dx, dy), element by element.
-            double n00 = 0, n01 = 0, n02 = 0, n11 = 0, n12 = 0, n22 = 0;
-            double r0 = 0, r1 = 0, r2 = 0;
-            samples.clear();
-            for (const cv::Point& d : neighbours) {
-              const double u = before.at<float>(y + d.y, x + d.x);
-              const double dx = d.x, dy = d.y;
-              n00 += 1.0;
-              n01 += dx;
-              n02 += dy;
-              n11 += dx * dx;
-              n12 += dx * dy;
-              n22 += dy * dy;
-              r0 += u;
-              r1 += dx * u;
-              r2 += dy * u;
-              samples.push_back(
-                  {static_cast<float>(d.x), static_cast<float>(d.y), static_cast<float>(u)});
-            }
-            const cv::Matx33d normal(n00, n01, n02, n01, n11, n12, n02, n12, n22);
-            const cv::Vec3d rhs(r0, r1, r2);
-            if (static_cast<int>(samples.size()) < options.consistency.min_neighbours ||
-                cv::determinant(normal) < 1e-6) {
-              ok = false;
-              break;
-            }
-            const cv::Vec3d plane = normal.inv() * rhs;
-            double residual = 0.0;
-            for (const cv::Vec3f& sample : samples) {
-              const double r = sample[2] - (plane[0] + plane[1] * sample[0] + plane[2] * sample[1]);
-              residual += r * r;
-            }
-            // Not a smooth surface around the pixel (an edge, another object): no prediction.
-            if (std::sqrt(residual / samples.size()) > options.consistency.max_plane_rms_px) {
-              ok = false;
-              break;
-            }
-            const float predicted = static_cast<float>(plane[0]);
-            // Beyond the projector's outermost pixel centre: the pixel sees the edge of the
-            // projected light (its code is the edge block's only by extrapolation), not a
-            // code — filled, it triangulated to a point off the surface.
-            if (!(predicted >= 0.0f && predicted <= static_cast<float>(axes[a].size - 1))) {
-              ok = false;
-              break;
-            }
-            const float gradient = static_cast<float>(std::hypot(plane[1], plane[2]));
-            // Stripes compressed below the camera's resolution (a surface seen at grazing
-            // incidence): the neighbours cannot bound the code to a pixel.
-            if (!(gradient <= options.consistency.max_gradient)) {
-              ok = false;
-              break;
-            }
-            Margins(axes[a], white, black, x, y, gradient, options.consistency.max_average_radius,
-                    &margins);
-            choices[a] = ChooseBlock(axes[a], margins, predicted, contrast, options);
-            ok = std::isfinite(choices[a].coordinate);
-          }
-          if (!ok) continue;
-          Fill fill;
-          fill.x = x;
-          fill.y = y;
-          fill.confidence = 1.0f;
-          for (size_t a = 0; a < axes.size(); ++a) {
-            fill.coordinate[a] = choices[a].coordinate;
-            fill.confidence = std::min(fill.confidence, choices[a].confidence);
-          }
-          fills_per_row[y].push_back(fill);
         }
+      });
+      for (const std::vector<Fill>& row_fills : fills_per_row) {
+        fills.insert(fills.end(), row_fills.begin(), row_fills.end());
       }
-    });
-    int filled = 0;
-    cv::Mat next_near = cv::Mat::zeros(rows, cols, CV_8UC1);
-    for (const std::vector<Fill>& row_fills : fills_per_row) {
-      for (const Fill& fill : row_fills) {
-        for (size_t a = 0; a < axes.size(); ++a) {
-          (axes[a].axis == PatternAxis::kX ? map->proj_x : map->proj_y)
-              .at<float>(fill.y, fill.x) = fill.coordinate[a];
-        }
-        map->mask.at<uint8_t>(fill.y, fill.x) = 255;
-        map->confidence.at<float>(fill.y, fill.x) = fill.confidence;
-        const cv::Rect window(fill.x - radius, fill.y - radius, 2 * radius + 1, 2 * radius + 1);
-        next_near(window & cv::Rect(0, 0, cols, rows)).setTo(1);
-        ++filled;
+    } else {
+      std::vector<Fill> decided(candidates.size());
+      std::vector<uint8_t> filled_here(candidates.size(), 0);
+      cv::parallel_for_(cv::Range(0, static_cast<int>(candidates.size())),
+                        [&](const cv::Range& range) {
+                          Scratch scratch;
+                          for (int i = range.start; i < range.end; ++i) {
+                            filled_here[i] =
+                                decide(candidates[i].x, candidates[i].y, &scratch, &decided[i]);
+                          }
+                        });
+      for (size_t i = 0; i < candidates.size(); ++i) {
+        if (filled_here[i]) fills.push_back(decided[i]);
       }
     }
-    if (filled == 0) break;
-    near_fill = next_near;
+    if (fills.empty()) break;
+    for (const Fill& fill : fills) {
+      for (size_t a = 0; a < axes.size(); ++a) {
+        (axes[a].axis == PatternAxis::kX ? map->proj_x : map->proj_y)
+            .at<float>(fill.y, fill.x) = fill.coordinate[a];
+      }
+      map->mask.at<uint8_t>(fill.y, fill.x) = 255;
+      map->confidence.at<float>(fill.y, fill.x) = fill.confidence;
+    }
+    // The next pass's candidates: the pixels still undecoded within a fill's window.
+    if (listed.empty()) listed = cv::Mat::zeros(rows, cols, CV_8UC1);
+    for (const cv::Point& c : candidates) listed.at<uint8_t>(c.y, c.x) = 0;
+    candidates.clear();
+    for (const Fill& fill : fills) {
+      for (int yy = std::max(0, fill.y - radius); yy <= std::min(rows - 1, fill.y + radius); ++yy) {
+        const uint8_t* mask_row = map->mask.ptr<uint8_t>(yy);
+        uint8_t* listed_row = listed.ptr<uint8_t>(yy);
+        for (int xx = std::max(0, fill.x - radius); xx <= std::min(cols - 1, fill.x + radius);
+             ++xx) {
+          if (mask_row[xx] != 0 || listed_row[xx] != 0) continue;
+          listed_row[xx] = 1;
+          candidates.emplace_back(xx, yy);
+        }
+      }
+    }
   }
 }
 
