@@ -25,6 +25,10 @@ void RefineRows(const std::vector<const cv::Mat*>& pattern,
                 int blocks, float step, cv::Mat* coordinates) {
   const int bits = static_cast<int>(pattern.size());
   const float half_offset = 0.5f * (step - 1.0f);  // block centre − block start
+  // Dividing by a power of two is multiplying by its (exact) inverse.
+  int exponent = 0;
+  const bool power_of_two = std::frexp(step, &exponent) == 0.5f;
+  const float inverse_step = 1.0f / step;
   cv::parallel_for_(cv::Range(0, coordinates->rows), [&](const cv::Range& rows) {
     std::vector<const Pixel*> pattern_row(bits, nullptr), inverse_row(bits, nullptr);
     for (int y = rows.start; y < rows.end; ++y) {
@@ -53,7 +57,8 @@ void RefineRows(const std::vector<const cv::Mat*>& pattern,
       for (int x = 0; x < coordinates->cols; ++x) {
         const float value = row[x];
         if (!std::isfinite(value)) continue;
-        const float position = (value - half_offset) / step;  // block index
+        const float position = power_of_two ? (value - half_offset) * inverse_step
+                                            : (value - half_offset) / step;  // block index
         // Nearest block (ties either way: a tie is half a block from a centre, skipped).
         const int block = static_cast<int>(std::floor(position + 0.5f));
         // Only block centres are refined: the decoder puts pixels on a boundary (the
@@ -62,9 +67,10 @@ void RefineRows(const std::vector<const cv::Mat*>& pattern,
         if (std::abs(position - block) > kCentreTolerance) continue;
         if (block <= 0 || block + 1 >= blocks) continue;
         const uint32_t gray = GrayFromBinary(block);
-        // The single bit that flips at each edge of the block.
-        const int lower_bit = __builtin_ctz(gray ^ GrayFromBinary(block - 1)) + lowest;
-        const int upper_bit = __builtin_ctz(gray ^ GrayFromBinary(block + 1)) + lowest;
+        // The single bit that flips at each edge of the block: from Gray word n − 1 to n
+        // the bit that flips is the lowest set bit of n.
+        const int lower_bit = __builtin_ctz(static_cast<uint32_t>(block)) + lowest;
+        const int upper_bit = __builtin_ctz(static_cast<uint32_t>(block + 1)) + lowest;
         const float lower = margin(lower_bit, (gray >> (lower_bit - lowest)) & 1u, x);
         const float upper = margin(upper_bit, (gray >> (upper_bit - lowest)) & 1u, x);
         if (!(lower >= 0.0f) || !(upper >= 0.0f) || lower + upper <= 0.0f) continue;
