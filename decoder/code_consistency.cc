@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "core/error.h"
+#include "decoder/plane_fit_sums.h"
 #include "projector/patterns.h"
 
 namespace sope {
@@ -353,26 +354,17 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
         // Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours:
         // the prediction at the pixel and the local gradient.
         // Σ basis·basisᵀ and Σ basis·u, basis = (1, dx, dy), element by element.
-        double n00 = 0, n01 = 0, n02 = 0, n11 = 0, n12 = 0, n22 = 0;
-        double r0 = 0, r1 = 0, r2 = 0;
+        PlaneFitSums sums;
         samples.clear();
         for (const cv::Point& d : neighbours) {
           const double u = before.at<float>(y + d.y, x + d.x);
-          const double dx = d.x, dy = d.y;
-          n00 += 1.0;
-          n01 += dx;
-          n02 += dy;
-          n11 += dx * dx;
-          n12 += dx * dy;
-          n22 += dy * dy;
-          r0 += u;
-          r1 += dx * u;
-          r2 += dy * u;
+          sums.Add(d.x, d.y, u);
           samples.push_back(
               {static_cast<float>(d.x), static_cast<float>(d.y), static_cast<float>(u)});
         }
-        const cv::Matx33d normal(n00, n01, n02, n01, n11, n12, n02, n12, n22);
-        const cv::Vec3d rhs(r0, r1, r2);
+        const cv::Matx33d normal(sums.n, sums.x, sums.y, sums.x, sums.xx, sums.xy, sums.y,
+                                 sums.xy, sums.yy);
+        const cv::Vec3d rhs(sums.u, sums.xu, sums.yu);
         if (static_cast<int>(samples.size()) < options.consistency.min_neighbours ||
             cv::determinant(normal) < 1e-6) {
           ok = false;

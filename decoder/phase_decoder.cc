@@ -13,6 +13,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
+#include "decoder/plane_fit_sums.h"
 #include "core/file_util.h"
 #include "decoder/chunk_workers.h"
 #include "decoder/speckle_filter.h"
@@ -686,22 +687,11 @@ void FitCoordinatesLocally(const PhaseDecoderOptions& options, const cv::Mat& ma
         float value = 0.0f;
         bool fitted = false;
         for (int pass = 0; pass < 2 && n >= min_samples; ++pass) {
-          double s1 = 0, sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0, su = 0, sxu = 0, syu = 0;
-          for (int k = 0; k < n; ++k) {
-            const double dx = dxs[k], dy = dys[k], u = us[k];
-            s1 += 1;
-            sx += dx;
-            sy += dy;
-            sxx += dx * dx;
-            sxy += dx * dy;
-            syy += dy * dy;
-            su += u;
-            sxu += dx * u;
-            syu += dy * u;
-          }
+          PlaneFitSums sums;
+          for (int k = 0; k < n; ++k) sums.Add(dxs[k], dys[k], us[k]);
           Eigen::Matrix3d normal;
-          normal << s1, sx, sy, sx, sxx, sxy, sy, sxy, syy;
-          const Eigen::Vector3d rhs(su, sxu, syu);
+          normal << sums.n, sums.x, sums.y, sums.x, sums.xx, sums.xy, sums.y, sums.xy, sums.yy;
+          const Eigen::Vector3d rhs(sums.u, sums.xu, sums.yu);
           const Eigen::LDLT<Eigen::Matrix3d> ldlt(normal);
           if (ldlt.info() != Eigen::Success || !(std::abs(ldlt.vectorD().minCoeff()) > 1e-6)) {
             fitted = false;
