@@ -16,9 +16,19 @@ namespace {
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
+// A pixel value as grey levels on the 8-bit scale.
+template <typename Pixel>
+inline float GreyOf(Pixel v) {
+  if constexpr (sizeof(Pixel) == 2) {
+    return v / 257.0f;
+  } else {
+    return static_cast<float>(v);
+  }
+}
+
 inline float Grey(const cv::Mat& image, int x, int y) {
-  return image.depth() == CV_16U ? image.at<uint16_t>(y, x) / 257.0f
-                                 : static_cast<float>(image.at<uint8_t>(y, x));
+  return image.depth() == CV_16U ? GreyOf(image.at<uint16_t>(y, x))
+                                 : GreyOf(image.at<uint8_t>(y, x));
 }
 
 // The frames of one code axis, from its least significant present bit up.
@@ -39,12 +49,6 @@ inline float Margin(const AxisFrames& axis, size_t k, const cv::Mat* white, cons
   return 2.0f * p - Grey(*white, x, y) - Grey(*black, x, y);
 }
 
-// Signed margins of every bit at (x, y), each averaged over a square window of half side
-// min(max_radius, ⌊stripe / 4⌋) camera pixels, `stripe` the bit's stripe width in camera
-// pixels at the local coordinate gradient `gradient` (projector px per camera px): the
-// window stays well inside one stripe, so averaging removes noise without mixing stripes
-// except within a quarter stripe of an edge (where the pixel is between two neighbouring
-// blocks anyway).
 // Σ Margin over the window rows [y0, y1] × columns [x0, x1] for each of the `count` bit
 // indices `bits`, into sums[bits[j]]: each bit's values added in the same row-major order
 // as Margin(…, xx, yy) in a loop over the window, the bits' sums side by side (independent
@@ -52,13 +56,7 @@ inline float Margin(const AxisFrames& axis, size_t k, const cv::Mat* white, cons
 template <typename Pixel>
 void WindowMarginSums(const AxisFrames& axis, const int* bits, int count, const cv::Mat* white,
                       const cv::Mat* black, int x0, int x1, int y0, int y1, float* sums) {
-  const auto grey = [](Pixel v) {
-    if constexpr (sizeof(Pixel) == 2) {
-      return v / 257.0f;
-    } else {
-      return static_cast<float>(v);
-    }
-  };
+  const auto grey = [](Pixel v) { return GreyOf(v); };
   constexpr int kMaxBits = 32;
   const Pixel* p[kMaxBits];
   const Pixel* q[kMaxBits];
@@ -89,6 +87,12 @@ void WindowMarginSums(const AxisFrames& axis, const int* bits, int count, const 
   for (int j = 0; j < count; ++j) sums[bits[j]] = sum[j];
 }
 
+// Signed margins of every bit at (x, y), each averaged over a square window of half side
+// min(max_radius, ⌊stripe / 4⌋) camera pixels, `stripe` the bit's stripe width in camera
+// pixels at the local coordinate gradient `gradient` (projector px per camera px): the
+// window stays well inside one stripe, so averaging removes noise without mixing stripes
+// except within a quarter stripe of an edge (where the pixel is between two neighbouring
+// blocks anyway).
 void Margins(const AxisFrames& axis, const cv::Mat* white, const cv::Mat* black, int x, int y,
              float gradient, int max_radius, std::vector<float>* margins) {
   const int num_bits = static_cast<int>(axis.pattern.size());
@@ -317,21 +321,15 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       std::vector<cv::Vec3f> samples;
       std::vector<cv::Point> neighbours;
     };
-    // Whether the undecoded pixel (x, y) is filled, and with what (*out).
+    // Whether the pixel (x, y) — undecoded, with enough contrast (the callers pick such
+    // candidates) — is filled, and with what (*out).
     const auto decide = [&](int x, int y, Scratch* scratch, Fill* out) -> bool {
       std::vector<float>& margins = scratch->margins;
       std::vector<cv::Vec3f>& samples = scratch->samples;
       std::vector<cv::Point>& neighbours = scratch->neighbours;
-      if (mask_before.at<uint8_t>(y, x)) return false;
       const float contrast = contrast_at(x, y);
-      if (!(contrast >= options.consistency.min_contrast)) return false;
-      if (!decoded_sums.empty() &&
-          decoded_in_window(x, y) < options.consistency.min_neighbours) {
-        return false;
-      }
       decoded_neighbours(x, y, &neighbours);
-      // Too few decoded neighbours for the plane fit below (checked first: it rejects
-      // most candidates, and every test here only rejects, so the order is free).
+      // Too few decoded neighbours for the plane fit below.
       if (static_cast<int>(neighbours.size()) < options.consistency.min_neighbours) return false;
       // Relative to the decoded neighbours': a pixel much darker than the surface
       // around it is at a shadow's edge (partly lit, its code a mixture), whereas a
@@ -365,8 +363,7 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
         const cv::Matx33d normal(sums.n, sums.x, sums.y, sums.x, sums.xx, sums.xy, sums.y,
                                  sums.xy, sums.yy);
         const cv::Vec3d rhs(sums.u, sums.xu, sums.yu);
-        if (static_cast<int>(samples.size()) < options.consistency.min_neighbours ||
-            cv::determinant(normal) < 1e-6) {
+        if (cv::determinant(normal) < 1e-6) {
           ok = false;
           break;
         }
@@ -422,7 +419,8 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
           const uint8_t* mask_row = mask_before.ptr<uint8_t>(y);
           const float* contrast_row = contrast_image.ptr<float>(y);
           for (int x = 0; x < cols; ++x) {
-            // decide's first tests, here where most pixels stop.
+            // Undecoded, with enough contrast, and (where most pixels stop) enough decoded
+            // neighbours.
             if (mask_row[x] != 0 || !(contrast_row[x] >= options.consistency.min_contrast) ||
                 decoded_in_window(x, y) < options.consistency.min_neighbours) {
               continue;
@@ -458,7 +456,8 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       map->mask.at<uint8_t>(fill.y, fill.x) = 255;
       map->confidence.at<float>(fill.y, fill.x) = fill.confidence;
     }
-    // The next pass's candidates: the pixels still undecoded within a fill's window.
+    // The next pass's candidates: the pixels still undecoded within a fill's window, with
+    // enough contrast.
     if (listed.empty()) listed = cv::Mat::zeros(rows, cols, CV_8UC1);
     for (const cv::Point& c : candidates) listed.at<uint8_t>(c.y, c.x) = 0;
     candidates.clear();
@@ -468,7 +467,10 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
         uint8_t* listed_row = listed.ptr<uint8_t>(yy);
         for (int xx = std::max(0, fill.x - radius); xx <= std::min(cols - 1, fill.x + radius);
              ++xx) {
-          if (mask_row[xx] != 0 || listed_row[xx] != 0) continue;
+          if (mask_row[xx] != 0 || listed_row[xx] != 0 ||
+              !(contrast_at(xx, yy) >= options.consistency.min_contrast)) {
+            continue;
+          }
           listed_row[xx] = 1;
           candidates.emplace_back(xx, yy);
         }

@@ -25,10 +25,6 @@ void RefineRows(const std::vector<const cv::Mat*>& pattern,
                 int blocks, float step, cv::Mat* coordinates) {
   const int bits = static_cast<int>(pattern.size());
   const float half_offset = 0.5f * (step - 1.0f);  // block centre − block start
-  // Dividing by a power of two is multiplying by its (exact) inverse.
-  int exponent = 0;
-  const bool power_of_two = std::frexp(step, &exponent) == 0.5f;
-  const float inverse_step = 1.0f / step;
   cv::parallel_for_(cv::Range(0, coordinates->rows), [&](const cv::Range& rows) {
     std::vector<const Pixel*> pattern_row(bits, nullptr), inverse_row(bits, nullptr);
     for (int y = rows.start; y < rows.end; ++y) {
@@ -57,8 +53,7 @@ void RefineRows(const std::vector<const cv::Mat*>& pattern,
       for (int x = 0; x < coordinates->cols; ++x) {
         const float value = row[x];
         if (!std::isfinite(value)) continue;
-        const float position = power_of_two ? (value - half_offset) * inverse_step
-                                            : (value - half_offset) / step;  // block index
+        const float position = (value - half_offset) / step;  // block index
         // Nearest block (ties either way: a tie is half a block from a centre, skipped).
         const int block = static_cast<int>(std::floor(position + 0.5f));
         // Only block centres are refined: the decoder puts pixels on a boundary (the

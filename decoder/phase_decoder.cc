@@ -13,9 +13,9 @@
 #include <opencv2/imgproc.hpp>
 
 #include "core/error.h"
-#include "decoder/plane_fit_sums.h"
 #include "core/file_util.h"
 #include "decoder/chunk_workers.h"
+#include "decoder/plane_fit_sums.h"
 #include "decoder/speckle_filter.h"
 #include "projector/patterns.h"
 
@@ -564,8 +564,8 @@ float WrappedAtan2(float y, float x) { return FastWrappedAtan2(y, x); }
 namespace {
 
 // Of two one-sided slopes the smaller (0 when they disagree in sign; a NaN one — no
-// neighbour on that side — yields the other).
-// Branch-free (selects only), so that the row loop below vectorises.
+// neighbour on that side — yields the other). Branch-free (selects only), so that the row
+// loop below vectorises.
 inline float Minmod(float a, float b) {
   const bool no_a = std::isnan(a), no_b = std::isnan(b);
   const float smaller = std::abs(a) < std::abs(b) ? a : b;
