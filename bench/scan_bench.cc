@@ -94,13 +94,17 @@ BENCHMARK(BM_DecodeScanOptions)
 // that after the last frame only its bit and the finish remain. Timed: AddFrame(last) +
 // Finish (the last-frame → map latency), beside BM_Decode (the batch decode, all of it
 // after the last frame); "total" adds every frame (the whole work, overlapped with
-// capture in the live loop).
+// capture in the live loop). scan_defaults 1: with the options scans use (sub-pixel edges
+// and code consistency; the first axis's edges are refined during the capture), wall and
+// process CPU time.
 void BM_DecodeIncremental(benchmark::State& state) {
   const Input& input = GetInput();
   const bool last_frame_only = state.range(0) == 1;
+  const bool scan_defaults = state.range(1) == 1;
   const FrameSet& frames = input.frames;
   const size_t count = frames.images.size();
-  IncrementalDecoder decoder(frames.manifest);
+  IncrementalDecoder decoder(frames.manifest,
+                             scan_defaults ? ScanOptions().decoder : DecoderOptions());
   CorrespondenceMap map;
   for (auto _ : state) {
     if (last_frame_only) {
@@ -116,12 +120,14 @@ void BM_DecodeIncremental(benchmark::State& state) {
     decoder.Finish(&map);
     benchmark::DoNotOptimize(map.mask.data);
   }
-  state.SetLabel(last_frame_only ? "last frame -> map" : "total");
+  state.SetLabel(fmt::format("{}{}", last_frame_only ? "last frame -> map" : "total",
+                             scan_defaults ? ", scan defaults" : ""));
 }
 BENCHMARK(BM_DecodeIncremental)
-    ->Arg(1)
-    ->Arg(0)
-    ->ArgName("last_frame_only")
+    ->ArgsProduct({{1, 0}, {0, 1}})
+    ->ArgNames({"last_frame_only", "scan_defaults"})
+    ->MeasureProcessCPUTime()
+    ->UseRealTime()
     ->Unit(benchmark::kMillisecond)
     ->Repetitions(5)
     ->ReportAggregatesOnly(true);

@@ -918,6 +918,7 @@ TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
     BitDecision mode;
     double relative;
     bool sixteen_bit;
+    bool scan_defaults = false;  // sub-pixel edges and code consistency
   };
   const std::vector<Variant> variants = {
       {"inverses", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, false},
@@ -927,6 +928,12 @@ TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
       {"threshold (batch)", true, PatternAxes::kXY, BitDecision::kThreshold, 0.0, false},
       {"robust (batch)", true, PatternAxes::kXY, BitDecision::kRobust, 0.0, false},
       {"16-bit (batch)", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, true},
+      {"scan defaults", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, false, true},
+      {"scan defaults, no white/black", false, PatternAxes::kXY, BitDecision::kAuto, 0.0, false,
+       true},
+      {"scan defaults, x only", true, PatternAxes::kX, BitDecision::kAuto, 0.0, false, true},
+      {"scan defaults, 16-bit (batch)", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, true,
+       true},
   };
   for (const Variant& variant : variants) {
     SCOPED_TRACE(variant.name);
@@ -942,6 +949,10 @@ TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
     DecoderOptions options;
     options.bit_decision = variant.mode;
     options.min_relative_bit_contrast = variant.relative;
+    if (variant.scan_defaults) {
+      options.gray_subpixel = GraySubpixel::kEdges;
+      options.consistency.enabled = true;
+    }
     const CorrespondenceMap batch = Decode(capture.frame_set, options);
     ASSERT_GT(batch.CountValid(), 10000u);
     const size_t count = capture.frame_set.images.size();
@@ -963,6 +974,93 @@ TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
       CorrespondenceMap incremental;
       decoder.Finish(&incremental);
       ExpectSameMaps(batch, incremental);
+    }
+  }
+}
+
+// RefineGraySubpixel's stripe-edge formula, one pixel at a time as its header states it:
+// the reference for the row-wise kernel (per-row bit differences, the edge bits found
+// with float exponents, gathered).
+cv::Mat ReferenceGrayRefinement(const FrameSet& frames, PatternAxis axis, const cv::Mat& decoded,
+                                float step) {
+  const FrameSetManifest& manifest = frames.manifest;
+  const int lowest = manifest.AxisLowestBit(axis);
+  const int size = axis == PatternAxis::kX ? manifest.projector_width : manifest.projector_height;
+  const int blocks = (size + (1 << lowest) - 1) >> lowest;
+  const auto white = manifest.Find(FrameRole::kWhite), black = manifest.Find(FrameRole::kBlack);
+  const auto grey = [&](size_t index, int x, int y) -> double {
+    const cv::Mat& image = frames.Image(index);
+    return image.depth() == CV_16U ? image.at<uint16_t>(y, x) : image.at<uint8_t>(y, x);
+  };
+  // Bit `bit`'s difference at (x, y), positive when the pixel sees 1; NaN: no frames.
+  const auto difference = [&](int bit, int x, int y) -> double {
+    const auto pattern = manifest.FindCode(axis, bit, false);
+    if (!pattern) return std::numeric_limits<double>::quiet_NaN();
+    if (const auto inverse = manifest.FindCode(axis, bit, true)) {
+      return grey(*pattern, x, y) - grey(*inverse, x, y);
+    }
+    if (!white || !black) return std::numeric_limits<double>::quiet_NaN();
+    return 2.0 * (grey(*pattern, x, y) - 0.5 * (grey(*white, x, y) + grey(*black, x, y)));
+  };
+  cv::Mat refined = decoded.clone();
+  for (int y = 0; y < decoded.rows; ++y) {
+    for (int x = 0; x < decoded.cols; ++x) {
+      const float value = decoded.at<float>(y, x);
+      if (!std::isfinite(value)) continue;
+      const float position = (value - 0.5f * (step - 1.0f)) / step;
+      const int block = static_cast<int>(std::lround(position));
+      if (std::abs(position - block) > 1e-4f || block < 1 || block + 1 >= blocks) continue;
+      const uint32_t gray = GrayFromBinary(block);
+      int lower_bit = 0, upper_bit = 0;  // the bits that flip from block − 1 and to block + 1
+      while (((GrayFromBinary(block - 1) ^ gray) >> lower_bit) != 1u) ++lower_bit;
+      while (((GrayFromBinary(block + 1) ^ gray) >> upper_bit) != 1u) ++upper_bit;
+      const double lower_sign = ((gray >> lower_bit) & 1u) ? 1.0 : -1.0;
+      const double upper_sign = ((gray >> upper_bit) & 1u) ? 1.0 : -1.0;
+      const float lower = static_cast<float>(lower_sign * difference(lower_bit + lowest, x, y));
+      const float upper = static_cast<float>(upper_sign * difference(upper_bit + lowest, x, y));
+      if (!(lower >= 0.0f) || !(upper >= 0.0f) || lower + upper <= 0.0f) continue;
+      refined.at<float>(y, x) = value + 0.5f * step * (lower - upper) / (lower + upper);
+    }
+  }
+  return refined;
+}
+
+// The sub-pixel edges give the reference's coordinates exactly: with inverses, against the
+// threshold (no inverses), 16-bit frames, omitted low bits.
+TEST(GraySubpixelEdges, MatchThePerPixelFormula) {
+  struct Variant {
+    std::string name;
+    bool inverted;
+    bool sixteen_bit;
+    int skip_low_bits;
+  };
+  for (const Variant& variant : {Variant{"inverses", true, false, 0},
+                                 Variant{"threshold", false, false, 0},
+                                 Variant{"16-bit", true, true, 0},
+                                 Variant{"omitted low bits", true, false, 2}}) {
+    SCOPED_TRACE(variant.name);
+    SceneOptions scene;
+    scene.camera_width = 517;
+    scene.patterns.projector_width = 300;
+    scene.patterns.projector_height = 200;
+    scene.patterns.inverted = variant.inverted;
+    scene.patterns.skip_low_bits = variant.skip_low_bits;
+    scene.sixteen_bit = variant.sixteen_bit;
+    const SyntheticCapture capture = RenderScene(scene);
+    const CorrespondenceMap centres = Decode(capture.frame_set);
+    ASSERT_GT(centres.CountValid(), 50000u);
+    DecoderOptions options;
+    options.gray_subpixel = GraySubpixel::kEdges;
+    const CorrespondenceMap edges = Decode(capture.frame_set, options);
+    for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
+      const bool x_axis = axis == PatternAxis::kX;
+      const cv::Mat& decoded = x_axis ? centres.proj_x : centres.proj_y;
+      const cv::Mat& refined = x_axis ? edges.proj_x : edges.proj_y;
+      const cv::Mat expected = ReferenceGrayRefinement(capture.frame_set, axis, decoded,
+                                                       x_axis ? centres.step_x : centres.step_y);
+      EXPECT_EQ(std::memcmp(refined.data, expected.data, expected.total() * sizeof(float)), 0);
+      // Most decoded pixels moved off their block centres.
+      EXPECT_GT(cv::countNonZero(refined != decoded), static_cast<int>(centres.CountValid() / 2));
     }
   }
 }

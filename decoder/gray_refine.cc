@@ -1,6 +1,8 @@
 #include "decoder/gray_refine.h"
 
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <opencv2/core.hpp>
 #include <vector>
 
@@ -16,63 +18,89 @@ namespace {
 // that close).
 constexpr float kCentreTolerance = 1e-4f;
 
-// RefineAxis's per-pixel work over the rows of `coordinates`, for frames of type Pixel:
-// each row's frame pointers taken once, then per pixel the margins of the bits that flip
-// at the edges of its block.
+// The index of the lowest set bit of n > 0 (as __builtin_ctz), from the exponent of the
+// float of n's lowest set bit (exact below 2^24): unlike the builtin, a loop of these
+// vectorises.
+inline int LowestSetBit(int n) {
+  const float lowest = static_cast<float>(n & -n);
+  return static_cast<int>((__builtin_bit_cast(uint32_t, lowest) >> 23) - 127u);
+}
+
+// Refines one row of `cols` pixels (`row`, in place): differences[k · cols + x] is the
+// signed difference of coded bit k (bit lowest + k) at x — pattern − inverse, or
+// 2 · (pattern − threshold) without an inverse (half the swing; both edges of a block may
+// be of either kind), NaN without either —, positive when the pixel sees 1. One loop over
+// the row that GCC vectorises (the two bits' differences gathered).
+void RefineRow(const float* __restrict differences, int cols, int blocks, float step,
+               float* __restrict row) {
+  const float half_offset = 0.5f * (step - 1.0f);  // block centre − block start
+  for (int x = 0; x < cols; ++x) {
+    const float value = row[x];
+    const float position = (value - half_offset) / step;  // block index
+    // Nearest block (ties either way: a tie is half a block from a centre, skipped).
+    const float nearest = std::floor(position + 0.5f);
+    // Only block centres are refined (NaN, undecoded, is not one): the decoder puts pixels
+    // on a boundary (the flipping bit undecided) at k + ½, already sub-pixel, and a map
+    // refined before keeps its values (refining is idempotent). The ends of the code
+    // range have no bracketing edge.
+    const bool centre = (std::abs(position - nearest) <= kCentreTolerance) &
+                        (nearest >= 1.0f) & (nearest + 1.0f < static_cast<float>(blocks));
+    const int block = centre ? static_cast<int>(nearest) : 1;
+    const int gray = static_cast<int>(GrayFromBinary(block));
+    // The single bit that flips at each edge of the block: from Gray word n − 1 to n the
+    // bit that flips is the lowest set bit of n.
+    const int lower_bit = LowestSetBit(block), upper_bit = LowestSetBit(block + 1);
+    const float lower_difference = differences[lower_bit * cols + x];
+    const float upper_difference = differences[upper_bit * cols + x];
+    // The margins, signed to be positive when the pixel sees the bit's value in the block.
+    const float lower = ((gray >> lower_bit) & 1) ? lower_difference : -lower_difference;
+    const float upper = ((gray >> upper_bit) & 1) ? upper_difference : -upper_difference;
+    const bool bracketed = (lower >= 0.0f) & (upper >= 0.0f) & (lower + upper > 0.0f);
+    const float refined = value + 0.5f * step * (lower - upper) / (lower + upper);
+    row[x] = centre & bracketed ? refined : value;
+  }
+}
+
+// Refines one axis of `coordinates` (CV_32FC1, NaN where undecoded) in place: row by row,
+// every coded bit's signed difference over the row first (each frame read in order), then
+// RefineRow.
 template <typename Pixel>
 void RefineRows(const std::vector<const cv::Mat*>& pattern,
                 const std::vector<const cv::Mat*>& inverse, const cv::Mat& threshold, int lowest,
                 int blocks, float step, cv::Mat* coordinates) {
   const int bits = static_cast<int>(pattern.size());
-  const float half_offset = 0.5f * (step - 1.0f);  // block centre − block start
-  cv::parallel_for_(cv::Range(0, coordinates->rows), [&](const cv::Range& rows) {
-    std::vector<const Pixel*> pattern_row(bits, nullptr), inverse_row(bits, nullptr);
-    for (int y = rows.start; y < rows.end; ++y) {
-      for (int bit = lowest; bit < bits; ++bit) {
-        pattern_row[bit] = pattern[bit] ? pattern[bit]->ptr<Pixel>(y) : nullptr;
-        inverse_row[bit] = inverse[bit] ? inverse[bit]->ptr<Pixel>(y) : nullptr;
-      }
-      const float* threshold_row = threshold.empty() ? nullptr : threshold.ptr<float>(y);
-      // Signed margin of `bit` at x: positive when the pixel sees the bit's value `on`. A
-      // bit decided against the threshold has half the swing of one against its inverse;
-      // both edges of a block may be of either kind, so the threshold margin is doubled.
-      const auto margin = [&](int bit, bool on, int x) -> float {
-        if (pattern_row[bit] == nullptr) return -1.0f;
-        float difference;
-        const float p = static_cast<float>(pattern_row[bit][x]);
-        if (inverse_row[bit] != nullptr) {
-          difference = p - static_cast<float>(inverse_row[bit][x]);
-        } else if (threshold_row != nullptr) {
-          difference = 2.0f * (p - threshold_row[x]);
-        } else {
-          return -1.0f;
+  const int cols = coordinates->cols;
+  const int coded = bits - lowest;
+  cv::parallel_for_(
+      cv::Range(0, coordinates->rows),
+      [&](const cv::Range& rows) {
+        std::vector<float> differences(static_cast<size_t>(coded) * cols);
+        for (int y = rows.start; y < rows.end; ++y) {
+          const float* threshold_row = threshold.empty() ? nullptr : threshold.ptr<float>(y);
+          for (int k = 0; k < coded; ++k) {
+            float* out = differences.data() + static_cast<size_t>(k) * cols;
+            const int bit = lowest + k;
+            if (pattern[bit] == nullptr || (inverse[bit] == nullptr && threshold_row == nullptr)) {
+              std::fill(out, out + cols, std::numeric_limits<float>::quiet_NaN());
+              continue;
+            }
+            const Pixel* p = pattern[bit]->ptr<Pixel>(y);
+            if (inverse[bit] != nullptr) {
+              const Pixel* q = inverse[bit]->ptr<Pixel>(y);
+              for (int x = 0; x < cols; ++x) {
+                out[x] = static_cast<float>(p[x]) - static_cast<float>(q[x]);
+              }
+            } else {
+              for (int x = 0; x < cols; ++x) {
+                out[x] = 2.0f * (static_cast<float>(p[x]) - threshold_row[x]);
+              }
+            }
+          }
+          RefineRow(differences.data(), cols, blocks, step, coordinates->ptr<float>(y));
         }
-        return on ? difference : -difference;
-      };
-      float* row = coordinates->ptr<float>(y);
-      for (int x = 0; x < coordinates->cols; ++x) {
-        const float value = row[x];
-        if (!std::isfinite(value)) continue;
-        const float position = (value - half_offset) / step;  // block index
-        // Nearest block (ties either way: a tie is half a block from a centre, skipped).
-        const int block = static_cast<int>(std::floor(position + 0.5f));
-        // Only block centres are refined: the decoder puts pixels on a boundary (the
-        // flipping bit undecided) at k + ½, already sub-pixel, and a map refined before
-        // keeps its values (refining is idempotent).
-        if (std::abs(position - block) > kCentreTolerance) continue;
-        if (block <= 0 || block + 1 >= blocks) continue;
-        const uint32_t gray = GrayFromBinary(block);
-        // The single bit that flips at each edge of the block: from Gray word n − 1 to n
-        // the bit that flips is the lowest set bit of n.
-        const int lower_bit = __builtin_ctz(static_cast<uint32_t>(block)) + lowest;
-        const int upper_bit = __builtin_ctz(static_cast<uint32_t>(block + 1)) + lowest;
-        const float lower = margin(lower_bit, (gray >> (lower_bit - lowest)) & 1u, x);
-        const float upper = margin(upper_bit, (gray >> (upper_bit - lowest)) & 1u, x);
-        if (!(lower >= 0.0f) || !(upper >= 0.0f) || lower + upper <= 0.0f) continue;
-        row[x] = value + 0.5f * step * (lower - upper) / (lower + upper);
-      }
-    }
-  });
+      },
+      // Stripes of rows, so that each allocates its differences once.
+      std::max(1, coordinates->rows / 16));
 }
 
 // Refines one axis of `coordinates` (CV_32FC1, NaN where undecoded) in place.
@@ -84,6 +112,8 @@ void RefineAxis(const FrameSet& frames, PatternAxis axis, float step, cv::Mat* c
   const int lowest = manifest.AxisLowestBit(axis);
   const int size = axis == PatternAxis::kX ? manifest.projector_width : manifest.projector_height;
   const int blocks = (size + (1 << lowest) - 1) >> lowest;  // coded blocks on this axis
+  // A block with a neighbour on both sides needs three.
+  if (blocks < 3) return;
   // Per coded bit: the pattern frame and what it is compared with (inverse, or
   // threshold).
   std::vector<const cv::Mat*> pattern(bits, nullptr), inverse(bits, nullptr);
