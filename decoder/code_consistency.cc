@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <type_traits>
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 #include <vector>
 
 #include "core/error.h"
@@ -31,6 +33,13 @@ inline float Grey(const cv::Mat& image, int x, int y) {
                                  : GreyOf(image.at<uint8_t>(y, x));
 }
 
+// white − black of `cols` pixels as grey levels (8-bit scale), as Grey(white) − Grey(black).
+template <typename Pixel>
+void WhiteMinusBlack(const Pixel* __restrict white, const Pixel* __restrict black, int cols,
+                     float* __restrict out) {
+  for (int x = 0; x < cols; ++x) out[x] = GreyOf(white[x]) - GreyOf(black[x]);
+}
+
 // The frames of one code axis, from its least significant present bit up.
 struct AxisFrames {
   PatternAxis axis = PatternAxis::kX;
@@ -52,16 +61,25 @@ inline float Margin(const AxisFrames& axis, size_t k, const cv::Mat* white, cons
 // Σ Margin over the window rows [y0, y1] × columns [x0, x1] for each of the `count` bit
 // indices `bits`, into sums[bits[j]]: each bit's values added in the same row-major order
 // as Margin(…, xx, yy) in a loop over the window, the bits' sums side by side (independent
-// chains of additions), the frames' row pointers read once per row.
+// chains of additions), the frames' row pointers read once per row. 8-bit frames are
+// summed in integers: their grey levels are integers and the window's partial sums far
+// below 2^24, so the float additions would be exact — the same sums.
 template <typename Pixel>
 void WindowMarginSums(const AxisFrames& axis, const int* bits, int count, const cv::Mat* white,
                       const cv::Mat* black, int x0, int x1, int y0, int y1, float* sums) {
-  const auto grey = [](Pixel v) { return GreyOf(v); };
+  using Sum = std::conditional_t<sizeof(Pixel) == 1, int, float>;
+  const auto grey = [](Pixel v) -> Sum {
+    if constexpr (sizeof(Pixel) == 1) {
+      return v;
+    } else {
+      return GreyOf(v);
+    }
+  };
   constexpr int kMaxBits = 32;
   const Pixel* p[kMaxBits];
   const Pixel* q[kMaxBits];
-  float sum[kMaxBits];
-  for (int j = 0; j < count; ++j) sum[j] = 0.0f;
+  Sum sum[kMaxBits];
+  for (int j = 0; j < count; ++j) sum[j] = 0;
   for (int yy = y0; yy <= y1; ++yy) {
     bool inverses = true;
     for (int j = 0; j < count; ++j) {
@@ -79,12 +97,12 @@ void WindowMarginSums(const AxisFrames& axis, const int* bits, int count, const 
       for (int xx = x0; xx <= x1; ++xx) {
         for (int j = 0; j < count; ++j) {
           sum[j] += q[j] ? grey(p[j][xx]) - grey(q[j][xx])
-                         : 2.0f * grey(p[j][xx]) - grey(w[xx]) - grey(b[xx]);
+                         : Sum{2} * grey(p[j][xx]) - grey(w[xx]) - grey(b[xx]);
         }
       }
     }
   }
-  for (int j = 0; j < count; ++j) sums[bits[j]] = sum[j];
+  for (int j = 0; j < count; ++j) sums[bits[j]] = static_cast<float>(sum[j]);
 }
 
 // Signed margins of every bit at (x, y), each averaged over a square window of half side
@@ -127,6 +145,28 @@ void Margins(const AxisFrames& axis, const cv::Mat* white, const cv::Mat* black,
     }
     const float samples = static_cast<float>((x1 - x0 + 1) * (y1 - y0 + 1));
     for (int j = 0; j < count; ++j) (*margins)[bits[j]] /= samples;
+  }
+}
+
+// Candidates ahead whose frames PrefetchMargins asks for.
+constexpr int kPrefetchAhead = 1;
+// Candidates decided by one task of the pool.
+constexpr int kCandidatesPerStripe = 64;
+
+// Asks for the cache lines Margins reads at `pixel` (every bit's frames over the largest
+// window), so that deciding a candidate overlaps fetching the next one's.
+void PrefetchMargins(const std::vector<AxisFrames>& axes, cv::Point pixel, int max_radius) {
+  for (const AxisFrames& axis : axes) {
+    const cv::Mat& first = *axis.pattern[0];
+    const int y0 = std::max(0, pixel.y - max_radius);
+    const int y1 = std::min(first.rows - 1, pixel.y + max_radius);
+    const size_t offset = static_cast<size_t>(pixel.x) * first.elemSize();
+    for (size_t k = 0; k < axis.pattern.size(); ++k) {
+      for (int yy = y0; yy <= y1; ++yy) {
+        __builtin_prefetch(axis.pattern[k]->ptr(yy) + offset);
+        if (axis.inverse[k] != nullptr) __builtin_prefetch(axis.inverse[k]->ptr(yy) + offset);
+      }
+    }
   }
 }
 
@@ -248,11 +288,15 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
   cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
     for (int y = range.start; y < range.end; ++y) {
       float* row = contrast_image.ptr<float>(y);
-      for (int x = 0; x < cols; ++x) {
-        if (white && black) {
-          row[x] = Grey(*white, x, y) - Grey(*black, x, y);
-          continue;
+      if (white && black) {
+        if (white->depth() == CV_16U) {
+          WhiteMinusBlack(white->ptr<uint16_t>(y), black->ptr<uint16_t>(y), cols, row);
+        } else {
+          WhiteMinusBlack(white->ptr<uint8_t>(y), black->ptr<uint8_t>(y), cols, row);
         }
+        continue;
+      }
+      for (int x = 0; x < cols; ++x) {
         float contrast = 0.0f;
         for (const AxisFrames& axis : axes) {
           for (size_t k = 0; k < axis.pattern.size(); ++k)
@@ -297,17 +341,9 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     // from an integral image first (most candidates have too few and go no further).
     cv::Mat decoded_sums;  // (rows + 1) × (cols + 1), CV_32S: decoded pixels above-left
     if (pass == 0) {
-      decoded_sums = cv::Mat::zeros(rows + 1, cols + 1, CV_32S);
-      for (int y = 0; y < rows; ++y) {
-        const uint8_t* mask_row = mask_before.ptr<uint8_t>(y);
-        const int* above = decoded_sums.ptr<int>(y);
-        int* sums = decoded_sums.ptr<int>(y + 1);
-        int row_sum = 0;
-        for (int x = 0; x < cols; ++x) {
-          row_sum += mask_row[x] != 0;
-          sums[x + 1] = above[x + 1] + row_sum;
-        }
-      }
+      cv::Mat decoded;  // 1 where decoded, else 0
+      cv::threshold(mask_before, decoded, 0, 1, cv::THRESH_BINARY);
+      cv::integral(decoded, decoded_sums, CV_32S);
     }
     const auto decoded_in_window = [&](int x, int y) {
       const int x0 = std::max(0, x - radius), x1 = std::min(cols - 1, x + radius) + 1;
@@ -318,14 +354,12 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     // Per thread: the working arrays of one decision.
     struct Scratch {
       std::vector<float> margins;
-      std::vector<cv::Vec3f> samples;
       std::vector<cv::Point> neighbours;
     };
     // Whether the pixel (x, y) — undecoded, with enough contrast (the callers pick such
     // candidates) — is filled, and with what (*out).
     const auto decide = [&](int x, int y, Scratch* scratch, Fill* out) -> bool {
       std::vector<float>& margins = scratch->margins;
-      std::vector<cv::Vec3f>& samples = scratch->samples;
       std::vector<cv::Point>& neighbours = scratch->neighbours;
       const float contrast = contrast_at(x, y);
       decoded_neighbours(x, y, &neighbours);
@@ -345,60 +379,54 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
           return false;
         }
       }
-      Choice choices[2];
-      bool ok = true;
-      for (size_t a = 0; a < axes.size() && ok; ++a) {
+      // The neighbours' prediction of every axis first (their coordinates are in cache),
+      // then the pixel's own bit margins (the frames: far more memory) only when every
+      // axis has one.
+      float predicted[2], gradient[2];
+      for (size_t a = 0; a < axes.size(); ++a) {
         const cv::Mat& before = axes[a].axis == PatternAxis::kX ? x_before : y_before;
         // Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours:
         // the prediction at the pixel and the local gradient.
         // Σ basis·basisᵀ and Σ basis·u, basis = (1, dx, dy), element by element.
         PlaneFitSums sums;
-        samples.clear();
         for (const cv::Point& d : neighbours) {
-          const double u = before.at<float>(y + d.y, x + d.x);
-          sums.Add(d.x, d.y, u);
-          samples.push_back(
-              {static_cast<float>(d.x), static_cast<float>(d.y), static_cast<float>(u)});
+          sums.Add(d.x, d.y, before.at<float>(y + d.y, x + d.x));
         }
         const cv::Matx33d normal(sums.n, sums.x, sums.y, sums.x, sums.xx, sums.xy, sums.y,
                                  sums.xy, sums.yy);
         const cv::Vec3d rhs(sums.u, sums.xu, sums.yu);
-        if (cv::determinant(normal) < 1e-6) {
-          ok = false;
-          break;
-        }
+        if (cv::determinant(normal) < 1e-6) return false;
         const cv::Vec3d plane = normal.inv() * rhs;
         double residual = 0.0;
-        for (const cv::Vec3f& sample : samples) {
-          const double r = sample[2] - (plane[0] + plane[1] * sample[0] + plane[2] * sample[1]);
+        for (const cv::Point& d : neighbours) {
+          const double r = before.at<float>(y + d.y, x + d.x) -
+                           (plane[0] + plane[1] * static_cast<float>(d.x) +
+                            plane[2] * static_cast<float>(d.y));
           residual += r * r;
         }
         // Not a smooth surface around the pixel (an edge, another object): no prediction.
-        if (std::sqrt(residual / samples.size()) > options.consistency.max_plane_rms_px) {
-          ok = false;
-          break;
+        if (std::sqrt(residual / neighbours.size()) > options.consistency.max_plane_rms_px) {
+          return false;
         }
-        const float predicted = static_cast<float>(plane[0]);
+        predicted[a] = static_cast<float>(plane[0]);
         // Beyond the projector's outermost pixel centre: the pixel sees the edge of the
         // projected light (its code is the edge block's only by extrapolation), not a
         // code — filled, it triangulated to a point off the surface.
-        if (!(predicted >= 0.0f && predicted <= static_cast<float>(axes[a].size - 1))) {
-          ok = false;
-          break;
+        if (!(predicted[a] >= 0.0f && predicted[a] <= static_cast<float>(axes[a].size - 1))) {
+          return false;
         }
-        const float gradient = static_cast<float>(std::hypot(plane[1], plane[2]));
+        gradient[a] = static_cast<float>(std::hypot(plane[1], plane[2]));
         // Stripes compressed below the camera's resolution (a surface seen at grazing
         // incidence): the neighbours cannot bound the code to a pixel.
-        if (!(gradient <= options.consistency.max_gradient)) {
-          ok = false;
-          break;
-        }
-        Margins(axes[a], white, black, x, y, gradient, options.consistency.max_average_radius,
-                &margins);
-        choices[a] = ChooseBlock(axes[a], margins, predicted, contrast, options);
-        ok = std::isfinite(choices[a].coordinate);
+        if (!(gradient[a] <= options.consistency.max_gradient)) return false;
       }
-      if (!ok) return false;
+      Choice choices[2];
+      for (size_t a = 0; a < axes.size(); ++a) {
+        Margins(axes[a], white, black, x, y, gradient[a], options.consistency.max_average_radius,
+                &margins);
+        choices[a] = ChooseBlock(axes[a], margins, predicted[a], contrast, options);
+        if (!std::isfinite(choices[a].coordinate)) return false;
+      }
       Fill& fill = *out;
       fill.x = x;
       fill.y = y;
@@ -409,43 +437,48 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       }
       return true;
     };
-    std::vector<Fill> fills;
+    // The first pass's candidates: every pixel undecoded, with enough contrast and (where
+    // most pixels stop) enough decoded neighbours, in row-major order.
     if (pass == 0) {
-      std::vector<std::vector<Fill>> fills_per_row(rows);
+      std::vector<std::vector<cv::Point>> candidates_per_row(rows);
       cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
-        Scratch scratch;
-        Fill fill;
         for (int y = range.start; y < range.end; ++y) {
           const uint8_t* mask_row = mask_before.ptr<uint8_t>(y);
           const float* contrast_row = contrast_image.ptr<float>(y);
           for (int x = 0; x < cols; ++x) {
-            // Undecoded, with enough contrast, and (where most pixels stop) enough decoded
-            // neighbours.
-            if (mask_row[x] != 0 || !(contrast_row[x] >= options.consistency.min_contrast) ||
-                decoded_in_window(x, y) < options.consistency.min_neighbours) {
-              continue;
+            if (mask_row[x] == 0 && contrast_row[x] >= options.consistency.min_contrast &&
+                decoded_in_window(x, y) >= options.consistency.min_neighbours) {
+              candidates_per_row[y].emplace_back(x, y);
             }
-            if (decide(x, y, &scratch, &fill)) fills_per_row[y].push_back(fill);
           }
         }
       });
-      for (const std::vector<Fill>& row_fills : fills_per_row) {
-        fills.insert(fills.end(), row_fills.begin(), row_fills.end());
+      for (const std::vector<cv::Point>& row_candidates : candidates_per_row) {
+        candidates.insert(candidates.end(), row_candidates.begin(), row_candidates.end());
       }
-    } else {
-      std::vector<Fill> decided(candidates.size());
-      std::vector<uint8_t> filled_here(candidates.size(), 0);
-      cv::parallel_for_(cv::Range(0, static_cast<int>(candidates.size())),
-                        [&](const cv::Range& range) {
-                          Scratch scratch;
-                          for (int i = range.start; i < range.end; ++i) {
-                            filled_here[i] =
-                                decide(candidates[i].x, candidates[i].y, &scratch, &decided[i]);
+    }
+    std::vector<Fill> decided(candidates.size());
+    std::vector<uint8_t> filled_here(candidates.size(), 0);
+    cv::parallel_for_(cv::Range(0, static_cast<int>(candidates.size())),
+                      [&](const cv::Range& range) {
+                        Scratch scratch;
+                        for (int i = range.start; i < range.end; ++i) {
+                          // The frames around the next candidates are on their way while
+                          // this one is decided.
+                          if (i + kPrefetchAhead < range.end) {
+                            PrefetchMargins(axes, candidates[i + kPrefetchAhead],
+                                            options.consistency.max_average_radius);
                           }
-                        });
-      for (size_t i = 0; i < candidates.size(); ++i) {
-        if (filled_here[i]) fills.push_back(decided[i]);
-      }
+                          filled_here[i] =
+                              decide(candidates[i].x, candidates[i].y, &scratch, &decided[i]);
+                        }
+                      },
+                      // Stripes of kCandidatesPerStripe candidates (OpenCV's default is one
+                      // per stripe): a scratch per stripe, the prefetches within it.
+                      std::max(1.0, static_cast<double>(candidates.size()) / kCandidatesPerStripe));
+    std::vector<Fill> fills;
+    for (size_t i = 0; i < candidates.size(); ++i) {
+      if (filled_here[i]) fills.push_back(decided[i]);
     }
     if (fills.empty()) break;
     for (const Fill& fill : fills) {
