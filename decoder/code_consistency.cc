@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <limits>
 #include <type_traits>
 #include <opencv2/core.hpp>
@@ -167,6 +169,34 @@ void PrefetchMargins(const std::vector<AxisFrames>& axes, cv::Point pixel, int m
         if (axis.inverse[k] != nullptr) __builtin_prefetch(axis.inverse[k]->ptr(yy) + offset);
       }
     }
+  }
+}
+
+// The first pass's candidates in one row of `cols` pixels: flags[x] = 1 when the pixel is
+// undecoded (mask 0), has at least `min_contrast` and at least `min_neighbours` decoded
+// pixels in its window of half side `radius`, counted from the integral image's rows
+// `top` (the window's first row) and `bottom` (one past its last). `left` (cols + 1) is
+// scratch: the window rows' decoded pixels left of each column. Loops GCC vectorises.
+void FlagFirstCandidates(const int* __restrict top, const int* __restrict bottom,
+                         const uint8_t* __restrict mask, const float* __restrict contrast,
+                         int cols, int radius, int min_neighbours, float min_contrast,
+                         int* __restrict left, uint8_t* __restrict flags) {
+  for (int x = 0; x <= cols; ++x) left[x] = bottom[x] - top[x];
+  const auto flag = [&](int x, int in_window) {
+    flags[x] = static_cast<uint8_t>((mask[x] == 0) & (contrast[x] >= min_contrast) &
+                                    (in_window >= min_neighbours));
+  };
+  // The window's columns x − radius … x + radius, clipped to the image at both ends.
+  const int first_whole = std::min(radius, cols);
+  const int end_whole = std::max(first_whole, cols - radius - 1);
+  for (int x = 0; x < first_whole; ++x) {
+    flag(x, left[std::min(cols, x + radius + 1)] - left[0]);
+  }
+  for (int x = first_whole; x < end_whole; ++x) {
+    flag(x, left[x + radius + 1] - left[x - radius]);
+  }
+  for (int x = end_whole; x < cols; ++x) {
+    flag(x, left[cols] - left[std::max(0, x - radius)]);
   }
 }
 
@@ -337,20 +367,6 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
         }
       }
     };
-    // The first pass looks at every pixel: the number of decoded pixels in each window
-    // from an integral image first (most candidates have too few and go no further).
-    cv::Mat decoded_sums;  // (rows + 1) × (cols + 1), CV_32S: decoded pixels above-left
-    if (pass == 0) {
-      cv::Mat decoded;  // 1 where decoded, else 0
-      cv::threshold(mask_before, decoded, 0, 1, cv::THRESH_BINARY);
-      cv::integral(decoded, decoded_sums, CV_32S);
-    }
-    const auto decoded_in_window = [&](int x, int y) {
-      const int x0 = std::max(0, x - radius), x1 = std::min(cols - 1, x + radius) + 1;
-      const int y0 = std::max(0, y - radius), y1 = std::min(rows - 1, y + radius) + 1;
-      return decoded_sums.at<int>(y1, x1) - decoded_sums.at<int>(y0, x1) -
-             decoded_sums.at<int>(y1, x0) + decoded_sums.at<int>(y0, x0);
-    };
     // Per thread: the working arrays of one decision.
     struct Scratch {
       std::vector<float> margins;
@@ -438,21 +454,34 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       return true;
     };
     // The first pass's candidates: every pixel undecoded, with enough contrast and (where
-    // most pixels stop) enough decoded neighbours, in row-major order.
+    // most pixels stop) enough decoded pixels in its window — counted from an integral
+    // image, a row at a time —, in row-major order.
     if (pass == 0) {
+      cv::Mat decoded, decoded_sums;  // 1 where decoded; (rows + 1) × (cols + 1) sums
+      cv::threshold(mask_before, decoded, 0, 1, cv::THRESH_BINARY);
+      cv::integral(decoded, decoded_sums, CV_32S);
+      const int min_neighbours = options.consistency.min_neighbours;
+      const float min_contrast = static_cast<float>(options.consistency.min_contrast);
       std::vector<std::vector<cv::Point>> candidates_per_row(rows);
       cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
+        std::vector<int> left(cols + 1);
+        std::vector<uint8_t> flags(cols + 8, 0);  // read eight at a time
         for (int y = range.start; y < range.end; ++y) {
-          const uint8_t* mask_row = mask_before.ptr<uint8_t>(y);
-          const float* contrast_row = contrast_image.ptr<float>(y);
-          for (int x = 0; x < cols; ++x) {
-            if (mask_row[x] == 0 && contrast_row[x] >= options.consistency.min_contrast &&
-                decoded_in_window(x, y) >= options.consistency.min_neighbours) {
-              candidates_per_row[y].emplace_back(x, y);
+          FlagFirstCandidates(decoded_sums.ptr<int>(std::max(0, y - radius)),
+                              decoded_sums.ptr<int>(std::min(rows - 1, y + radius) + 1),
+                              mask_before.ptr<uint8_t>(y), contrast_image.ptr<float>(y), cols,
+                              radius, min_neighbours, min_contrast, left.data(), flags.data());
+          // Eight flags at a time: candidates are rare.
+          for (int x = 0; x < cols; x += 8) {
+            uint64_t eight = 0;
+            std::memcpy(&eight, flags.data() + x, 8);
+            if (eight == 0) continue;
+            for (int xx = x; xx < std::min(cols, x + 8); ++xx) {
+              if (flags[xx] != 0) candidates_per_row[y].emplace_back(xx, y);
             }
           }
         }
-      });
+      }, std::max(1, rows / 16));  // stripes of rows: the scratch rows allocated once each
       for (const std::vector<cv::Point>& row_candidates : candidates_per_row) {
         candidates.insert(candidates.end(), row_candidates.begin(), row_candidates.end());
       }
