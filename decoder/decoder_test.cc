@@ -919,6 +919,7 @@ TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
     double relative;
     bool sixteen_bit;
     bool scan_defaults = false;  // sub-pixel edges and code consistency
+    int threads = 1;
   };
   const std::vector<Variant> variants = {
       {"inverses", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, false},
@@ -934,6 +935,9 @@ TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
       {"scan defaults, x only", true, PatternAxes::kX, BitDecision::kAuto, 0.0, false, true},
       {"scan defaults, 16-bit (batch)", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, true,
        true},
+      {"2 threads", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, false, false, 2},
+      {"scan defaults, 2 threads", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, false, true,
+       2},
   };
   for (const Variant& variant : variants) {
     SCOPED_TRACE(variant.name);
@@ -953,6 +957,7 @@ TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
       options.gray_subpixel = GraySubpixel::kEdges;
       options.consistency.enabled = true;
     }
+    options.num_threads = variant.threads;
     const CorrespondenceMap batch = Decode(capture.frame_set, options);
     ASSERT_GT(batch.CountValid(), 10000u);
     const size_t count = capture.frame_set.images.size();
