@@ -431,21 +431,27 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       // The neighbours' prediction of every axis first (their coordinates are in cache),
       // then the pixel's own bit margins (the frames: far more memory) only when every
       // axis has one.
+      // Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours, per
+      // axis: the prediction at the pixel and the local gradient. Σ basis·basisᵀ, basis =
+      // (1, dx, dy), depends only on which neighbours are decoded: summed (element by
+      // element) and inverted once for both axes; Σ basis·u per axis.
+      PlaneFitSums geometry;
+      for (const cv::Point& d : neighbours) geometry.Add(d.x, d.y, 0.0);
+      const cv::Matx33d normal(geometry.n, geometry.x, geometry.y, geometry.x, geometry.xx,
+                               geometry.xy, geometry.y, geometry.xy, geometry.yy);
+      if (cv::determinant(normal) < 1e-6) return false;
+      const cv::Matx33d inverse = normal.inv();
       float predicted[2], gradient[2];
       for (size_t a = 0; a < axes.size(); ++a) {
         const cv::Mat& before = axes[a].axis == PatternAxis::kX ? x_before : y_before;
-        // Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours:
-        // the prediction at the pixel and the local gradient.
-        // Σ basis·basisᵀ and Σ basis·u, basis = (1, dx, dy), element by element.
-        PlaneFitSums sums;
+        PlaneFitSums sums;  // the u sums (PlaneFitSums::Add's, in its order)
         for (const cv::Point& d : neighbours) {
-          sums.Add(d.x, d.y, before.at<float>(y + d.y, x + d.x));
+          const double value = before.at<float>(y + d.y, x + d.x);
+          sums.u += value;
+          sums.xu += static_cast<double>(d.x) * value;
+          sums.yu += static_cast<double>(d.y) * value;
         }
-        const cv::Matx33d normal(sums.n, sums.x, sums.y, sums.x, sums.xx, sums.xy, sums.y,
-                                 sums.xy, sums.yy);
-        const cv::Vec3d rhs(sums.u, sums.xu, sums.yu);
-        if (cv::determinant(normal) < 1e-6) return false;
-        const cv::Vec3d plane = normal.inv() * rhs;
+        const cv::Vec3d plane = inverse * cv::Vec3d(sums.u, sums.xu, sums.yu);
         double residual = 0.0;
         for (const cv::Point& d : neighbours) {
           const double r = before.at<float>(y + d.y, x + d.x) -
