@@ -205,6 +205,14 @@ void PrefetchMargins(const std::vector<AxisFrames>& axes, cv::Point pixel, int m
   }
 }
 
+// The least float ≥ `value`: for a float c, c ≥ value ⇔ c ≥ FloatAtLeast(value) (the
+// options are doubles, the contrasts floats).
+inline float FloatAtLeast(double value) {
+  float f = static_cast<float>(value);
+  if (static_cast<double>(f) < value) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  return f;
+}
+
 // The first pass's candidates in one row of `cols` pixels: flags[x] = 1 when the pixel is
 // undecoded (mask 0), has at least `min_contrast` and at least `min_neighbours` decoded
 // pixels in its window of half side `radius`, counted from the integral image's rows
@@ -500,7 +508,7 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       cv::threshold(mask_before, decoded, 0, 1, cv::THRESH_BINARY);
       cv::integral(decoded, decoded_sums, CV_32S);
       const int min_neighbours = options.consistency.min_neighbours;
-      const float min_contrast = static_cast<float>(options.consistency.min_contrast);
+      const float min_contrast = FloatAtLeast(options.consistency.min_contrast);
       std::vector<std::vector<cv::Point>> candidates_per_row(rows);
       cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
         std::vector<int> left(cols + 1);
@@ -558,22 +566,37 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       map->confidence.at<float>(fill.y, fill.x) = fill.confidence;
     }
     // The next pass's candidates: the pixels still undecoded within a fill's window, with
-    // enough contrast.
-    if (listed.empty()) listed = cv::Mat::zeros(rows, cols, CV_8UC1);
-    for (const cv::Point& c : candidates) listed.at<uint8_t>(c.y, c.x) = 0;
+    // enough contrast, in row-major order (a pass's decisions do not depend on their
+    // order). The fills' windows are marked in `listed` first (they overlap: each pixel is
+    // then tested once), then the rows they span are read eight marks at a time, clearing
+    // the marks.
+    if (listed.empty()) listed = cv::Mat::zeros(rows, cols + 8, CV_8UC1);
     candidates.clear();
+    int first_row = rows, last_row = -1;
     for (const Fill& fill : fills) {
-      for (int yy = std::max(0, fill.y - radius); yy <= std::min(rows - 1, fill.y + radius); ++yy) {
-        const uint8_t* mask_row = map->mask.ptr<uint8_t>(yy);
-        uint8_t* listed_row = listed.ptr<uint8_t>(yy);
-        for (int xx = std::max(0, fill.x - radius); xx <= std::min(cols - 1, fill.x + radius);
-             ++xx) {
-          if (mask_row[xx] != 0 || listed_row[xx] != 0 ||
-              !(contrast_at(xx, yy) >= options.consistency.min_contrast)) {
-            continue;
+      const int x0 = std::max(0, fill.x - radius), x1 = std::min(cols - 1, fill.x + radius);
+      const int y0 = std::max(0, fill.y - radius), y1 = std::min(rows - 1, fill.y + radius);
+      for (int yy = y0; yy <= y1; ++yy) {
+        std::memset(listed.ptr<uint8_t>(yy) + x0, 1, static_cast<size_t>(x1 - x0 + 1));
+      }
+      first_row = std::min(first_row, y0);
+      last_row = std::max(last_row, y1);
+    }
+    const float min_contrast = FloatAtLeast(options.consistency.min_contrast);
+    for (int yy = first_row; yy <= last_row; ++yy) {
+      uint8_t* listed_row = listed.ptr<uint8_t>(yy);
+      const uint8_t* mask_row = map->mask.ptr<uint8_t>(yy);
+      const float* contrast_row = contrast_image.ptr<float>(yy);
+      for (int x = 0; x < cols; x += 8) {
+        uint64_t eight = 0;
+        std::memcpy(&eight, listed_row + x, 8);
+        if (eight == 0) continue;
+        for (int xx = x; xx < std::min(cols, x + 8); ++xx) {
+          if (listed_row[xx] == 0) continue;
+          listed_row[xx] = 0;
+          if (mask_row[xx] == 0 && contrast_row[xx] >= min_contrast) {
+            candidates.emplace_back(xx, yy);
           }
-          listed_row[xx] = 1;
-          candidates.emplace_back(xx, yy);
         }
       }
     }
