@@ -75,7 +75,7 @@ inline int RowSumDifference(const uint8_t* p, const uint8_t* q, int x0, int x1, 
   for (; x <= x1 && x + 8 <= cols; x += 8) {
     const int width = std::min(8, x1 - x + 1);
     const uint64_t bits = width == 8 ? ~uint64_t{0} : (uint64_t{1} << (8 * width)) - 1;
-    const __m128i mask = _mm_cvtsi64_si128(static_cast<long long>(bits));
+    const __m128i mask = _mm_set_epi64x(0, static_cast<long long>(bits));
     const __m128i a = _mm_and_si128(
         _mm_loadl_epi64(reinterpret_cast<const __m128i*>(p + x)), mask);
     const __m128i b = _mm_and_si128(
