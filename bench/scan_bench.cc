@@ -95,8 +95,8 @@ BENCHMARK(BM_DecodeScanOptions)
 // Finish (the last-frame → map latency), beside BM_Decode (the batch decode, all of it
 // after the last frame); "total" adds every frame (the whole work, overlapped with
 // capture in the live loop). scan_defaults 1: with the options scans use (sub-pixel edges
-// and code consistency; the first axis's edges are refined during the capture), wall and
-// process CPU time.
+// and code consistency, both after the last frame: they need every bit), wall and process
+// CPU time.
 void BM_DecodeIncremental(benchmark::State& state) {
   const Input& input = GetInput();
   const bool last_frame_only = state.range(0) == 1;

@@ -29,10 +29,9 @@
 
 #include <benchmark/benchmark.h>
 
-#include <opencv2/core/utility.hpp>
-
 #include "bench/bench_support.h"
 #include "calibration/scan.h"
+#include "core/cv_threads.h"
 #include "core/error.h"
 #include "core/statistics.h"
 #include "pipeline/scan_source.h"
@@ -106,18 +105,6 @@ const Input& GetInput() {
 
 std::vector<double> table_totals, single_totals;
 
-// OpenCV's thread pool at one thread while it lives (then as before): one core.
-class OneThread {
- public:
-  OneThread() : previous_(cv::getNumThreads()) { cv::setNumThreads(1); }
-  ~OneThread() { cv::setNumThreads(previous_); }
-  OneThread(const OneThread&) = delete;
-  OneThread& operator=(const OneThread&) = delete;
-
- private:
-  int previous_;
-};
-
 // CPU time of this thread, ms (the machine is shared: wall clock includes other jobs).
 double ThreadCpuMs() {
   timespec t{};
@@ -131,7 +118,7 @@ void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clus
               std::vector<double>* totals_out, bool second_looks = true, int roll_steps = -1,
               const DecoderOptions& decoder = ScanOptions().decoder) {
   const Input& input = GetInput();
-  const OneThread one_thread;
+  const ScopedCvThreads one_core(1);  // OpenCV's pool on this thread only
   const SceneRecogniser recogniser(*input.db);
   // The per-model caches are built before the timed scans, as the scan-and-recognise loop
   // builds them on its other core during the first capture (SceneRecogniser::WarmUp); the
@@ -266,7 +253,7 @@ void BM_Segment_PclKdTree(benchmark::State& state) {
 // (arg 0). Dim, grazing table scenes leave many pixels to the code consistency.
 void BM_DecodeTableScene(benchmark::State& state) {
   const Input& input = GetInput();
-  const OneThread one_thread;
+  const ScopedCvThreads one_core(1);  // OpenCV's pool on this thread only
   const DecoderOptions options = state.range(0) != 0 ? ScanOptions().decoder : DecoderOptions();
   CorrespondenceMap map;
   size_t k = 0, valid = 0;
@@ -281,7 +268,7 @@ void BM_DecodeTableScene(benchmark::State& state) {
 void BM_SingleObjectPath(benchmark::State& state) {
   const Input& input = GetInput();
   const Recogniser recogniser(*input.db);
-  const OneThread one_thread;
+  const ScopedCvThreads one_core(1);  // OpenCV's pool on this thread only
   std::vector<double> total, cpu;
   size_t k = 0;
   for (auto _ : state) {

@@ -9,6 +9,7 @@
 #include <opencv2/core.hpp>
 
 #include "calibration/triangulation_rows.h"
+#include "core/cv_threads.h"
 #include "core/error.h"
 
 namespace sope {
@@ -894,10 +895,8 @@ TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map, cons
     }
   };
   if (num_blocks > 1) {
-    const int previous = cv::getNumThreads();
-    cv::setNumThreads(options_.num_threads);
+    const ScopedCvThreads threads(options_.num_threads);
     cv::parallel_for_(cv::Range(0, num_blocks), run_blocks);
-    cv::setNumThreads(previous);
   } else {
     run_blocks(cv::Range(0, 1));
   }

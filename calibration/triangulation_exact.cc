@@ -15,6 +15,7 @@
 
 #include "calibration/triangulation.h"
 #include "calibration/triangulation_rows.h"
+#include "core/cv_threads.h"
 #include "core/error.h"
 
 namespace sope {
@@ -211,10 +212,8 @@ TriangulationResult Triangulator::TriangulateExact(const CorrespondenceMap& map,
     }
   };
   if (options_.num_threads > 1) {
-    const int previous = cv::getNumThreads();
-    cv::setNumThreads(options_.num_threads);
+    const ScopedCvThreads threads(options_.num_threads);
     cv::parallel_for_(cv::Range(0, height), triangulate_rows);
-    cv::setNumThreads(previous);
   } else {
     triangulate_rows(cv::Range(0, height));
   }

@@ -205,6 +205,21 @@ void PrefetchMargins(const std::vector<AxisFrames>& axes, cv::Point pixel, int m
   }
 }
 
+// fn(x) for each x < cols whose byte in `bytes` is not 0, in increasing order, reading
+// eight bytes at a time (marks are sparse): `bytes` must be readable up to
+// cols rounded up to a multiple of 8. fn may clear the byte it is given.
+template <typename Fn>
+void ForEachMarked(const uint8_t* bytes, int cols, const Fn& fn) {
+  for (int x = 0; x < cols; x += 8) {
+    uint64_t eight = 0;
+    std::memcpy(&eight, bytes + x, 8);
+    if (eight == 0) continue;
+    for (int xx = x; xx < std::min(cols, x + 8); ++xx) {
+      if (bytes[xx] != 0) fn(xx);
+    }
+  }
+}
+
 // The least float ≥ `value`: for a float c, c ≥ value ⇔ c ≥ FloatAtLeast(value) (the
 // options are doubles, the contrasts floats).
 inline float FloatAtLeast(double value) {
@@ -388,10 +403,12 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     float coordinate[2] = {kNaN, kNaN};
     float confidence = 0.0f;
   };
-  // The pixels to decide in a pass after the first (undecoded, near a fill of the pass
-  // before), and which pixels are listed (a scratch image, cleared after each pass).
+  // The pixels a pass decides (undecoded, with enough contrast; after the first pass near
+  // a fill of the pass before), and the marks of the windows around the fills (a scratch
+  // image, its marks cleared as they are read).
   std::vector<cv::Point> candidates;
   cv::Mat listed;
+  const float min_contrast = FloatAtLeast(options.consistency.min_contrast);
   for (int pass = 0; pass < options.consistency.passes; ++pass) {
     const cv::Mat& mask_before = map->mask;
     const cv::Mat& x_before = map->proj_x;
@@ -438,13 +455,12 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       }
       // The neighbours' prediction of every axis first (their coordinates are in cache),
       // then the pixel's own bit margins (the frames: far more memory) only when every
-      // axis has one.
-      // Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours, per
+      // axis has one. Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours, per
       // axis: the prediction at the pixel and the local gradient. Σ basis·basisᵀ, basis =
       // (1, dx, dy), depends only on which neighbours are decoded: summed (element by
       // element) and inverted once for both axes; Σ basis·u per axis.
       PlaneFitSums geometry;
-      for (const cv::Point& d : neighbours) geometry.Add(d.x, d.y, 0.0);
+      for (const cv::Point& d : neighbours) geometry.AddBasis(d.x, d.y);
       const cv::Matx33d normal(geometry.n, geometry.x, geometry.y, geometry.x, geometry.xx,
                                geometry.xy, geometry.y, geometry.xy, geometry.yy);
       if (cv::determinant(normal) < 1e-6) return false;
@@ -452,12 +468,9 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       float predicted[2], gradient[2];
       for (size_t a = 0; a < axes.size(); ++a) {
         const cv::Mat& before = axes[a].axis == PatternAxis::kX ? x_before : y_before;
-        PlaneFitSums sums;  // the u sums (PlaneFitSums::Add's, in its order)
+        PlaneFitSums sums;  // Σ basis·u only
         for (const cv::Point& d : neighbours) {
-          const double value = before.at<float>(y + d.y, x + d.x);
-          sums.u += value;
-          sums.xu += static_cast<double>(d.x) * value;
-          sums.yu += static_cast<double>(d.y) * value;
+          sums.AddValue(d.x, d.y, before.at<float>(y + d.y, x + d.x));
         }
         const cv::Vec3d plane = inverse * cv::Vec3d(sums.u, sums.xu, sums.yu);
         double residual = 0.0;
@@ -508,7 +521,6 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       cv::threshold(mask_before, decoded, 0, 1, cv::THRESH_BINARY);
       cv::integral(decoded, decoded_sums, CV_32S);
       const int min_neighbours = options.consistency.min_neighbours;
-      const float min_contrast = FloatAtLeast(options.consistency.min_contrast);
       std::vector<std::vector<cv::Point>> candidates_per_row(rows);
       cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
         std::vector<int> left(cols + 1);
@@ -518,15 +530,8 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
                               decoded_sums.ptr<int>(std::min(rows - 1, y + radius) + 1),
                               mask_before.ptr<uint8_t>(y), contrast_image.ptr<float>(y), cols,
                               radius, min_neighbours, min_contrast, left.data(), flags.data());
-          // Eight flags at a time: candidates are rare.
-          for (int x = 0; x < cols; x += 8) {
-            uint64_t eight = 0;
-            std::memcpy(&eight, flags.data() + x, 8);
-            if (eight == 0) continue;
-            for (int xx = x; xx < std::min(cols, x + 8); ++xx) {
-              if (flags[xx] != 0) candidates_per_row[y].emplace_back(xx, y);
-            }
-          }
+          ForEachMarked(flags.data(), cols,
+                        [&](int x) { candidates_per_row[y].emplace_back(x, y); });
         }
       }, std::max(1, rows / 16));  // stripes of rows: the scratch rows allocated once each
       for (const std::vector<cv::Point>& row_candidates : candidates_per_row) {
@@ -582,23 +587,14 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       first_row = std::min(first_row, y0);
       last_row = std::max(last_row, y1);
     }
-    const float min_contrast = FloatAtLeast(options.consistency.min_contrast);
     for (int yy = first_row; yy <= last_row; ++yy) {
       uint8_t* listed_row = listed.ptr<uint8_t>(yy);
       const uint8_t* mask_row = map->mask.ptr<uint8_t>(yy);
       const float* contrast_row = contrast_image.ptr<float>(yy);
-      for (int x = 0; x < cols; x += 8) {
-        uint64_t eight = 0;
-        std::memcpy(&eight, listed_row + x, 8);
-        if (eight == 0) continue;
-        for (int xx = x; xx < std::min(cols, x + 8); ++xx) {
-          if (listed_row[xx] == 0) continue;
-          listed_row[xx] = 0;
-          if (mask_row[xx] == 0 && contrast_row[xx] >= min_contrast) {
-            candidates.emplace_back(xx, yy);
-          }
-        }
-      }
+      ForEachMarked(listed_row, cols, [&](int x) {
+        listed_row[x] = 0;
+        if (mask_row[x] == 0 && contrast_row[x] >= min_contrast) candidates.emplace_back(x, yy);
+      });
     }
   }
 }
