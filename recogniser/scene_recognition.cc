@@ -77,6 +77,7 @@ struct Hypothesis {
   int cluster = 0;
   RecognitionResult recognition;  // the suggestion in front
   double snap = 0.0;
+  double lift = 0.0;  // height of its lowest point above the table when left where it was
   bool flipped = false;
   bool twin = false;  // a half-turn twin of another hypothesis, refined on its cluster
   bool rested = false;  // turned onto a resting face of its model (it did not rest)
@@ -232,6 +233,14 @@ RecognitionResult RecogniseCluster(const SceneContext& ctx, const PointCloud& po
   return recognition;
 }
 
+// The number of database models of class `class_index` (an instance database has one per
+// class: the object on the table is one of them, of its size).
+int ModelsOfClass(const Database& database, int class_index) {
+  int count = 0;
+  for (int m = 0; m < database.num_models(); ++m) count += database.model(m).class_index == class_index;
+  return count;
+}
+
 // Puts the hypothesis down on the table (when within max_snap); false when it floats above
 // the table or sinks into it by more than max_float (not a resting object).
 bool SnapToTable(const SceneContext& ctx, Hypothesis* h) {
@@ -249,6 +258,7 @@ bool SnapToTable(const SceneContext& ctx, Hypothesis* h) {
     front.cam_from_model.translation -=
         static_cast<double>(lowest) * ctx.plane.normal.cast<double>();
     h->snap = -lowest;
+    h->lift = 0.0;
   }
   return true;
 }
@@ -266,6 +276,7 @@ bool TurnOntoTable(const SceneContext& ctx, const Eigen::Matrix3d& turn, double 
   if (!std::isfinite(lowest) || std::abs(lowest) > max_lift) return false;
   f.cam_from_model.translation -= static_cast<double>(lowest) * ctx.plane.normal.cast<double>();
   h->snap = -lowest;
+  h->lift = 0.0;
   return true;
 }
 
@@ -361,7 +372,14 @@ RecognitionResult AddClusterHypotheses(const SceneContext& ctx, int cluster,
     if (s != 0) {
       h.recognition.recognised = suggestion.score >= options.recognition.assembly.min_score;
     }
+    const Hypothesis before_put_down = h;
     if (on_table && !PutOnTable(ctx, &h)) continue;
+    if (on_table && options.keep_unsnapped_from > 0 && !h.rested &&
+        std::abs(h.snap) >= options.keep_unsnapped_from &&
+        ModelsOfClass(ctx.database, suggestion.class_index) >= 2) {
+      pool->hypotheses.push_back(before_put_down);  // where the recogniser put it
+      pool->hypotheses.back().lift = -h.snap;
+    }
     if (on_table && options.flip_hypotheses) {
       std::optional<Hypothesis> flipped = FlippedHypothesis(ctx, h);
       if (flipped) pool->hypotheses.push_back(std::move(*flipped));
@@ -1168,8 +1186,10 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
                           std::max(0.0, CentreOfMassHeight(surface, s.cam_from_model, plane,
                                                            ctx.database.model(s.model).diameter))
                     : 0.0;
+    const double diameter = ctx.database.model(s.model).diameter;
+    const double lift = diameter > 0 ? options.float_weight * std::abs(h.lift) / diameter : 0.0;
     const double prior =
-        stability +
+        stability + lift +
         options.class_weight * (1.0 - ClassProbability(h.recognition, s.class_index));
     const std::vector<ClassScore>& classes = h.recognition.classes;
     const double class_probability =
@@ -1258,14 +1278,14 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
     const Eigen::Vector3f& c = ctx.clusters[hypotheses[h].cluster].centroid;
     spdlog::debug("hypothesis cluster={} centroid=({:.4f},{:.4f},{:.4f}) class={} model={} "
                   "score={:.3f} class_p={:.3f} flipped={} twin={} rested={} sibling={} rolled={} "
-                  "fit={:.3f} "
+                  "lift={:.3f} fit={:.3f} "
                   "local={:.3f} "
                   "viol={:.3f} visible={} explained={} duplicates={} violations={} passes={} "
                   "accepted={} class_level={} why={}",
                   hypotheses[h].cluster, c.x(), c.y(), c.z(), s.class_name, s.model_name,
                   s.score, ClassProbability(hypotheses[h].recognition, s.class_index),
                   hypotheses[h].flipped, hypotheses[h].twin, hypotheses[h].rested,
-                  hypotheses[h].sibling, hypotheses[h].rolled, e.model_fit,
+                  hypotheses[h].sibling, hypotheses[h].rolled, hypotheses[h].lift, e.model_fit,
                   e.local_explained,
                   e.violation_fraction,
                   e.visible, e.explained.size(), e.duplicates, e.violations, e.passes,
@@ -1415,6 +1435,9 @@ void SceneRecognitionOptions::Check() const {
   SOPE_CHECK(max_rest_turn_deg >= 0 && max_rest_turn_deg <= 180,
              "scene recognition: max rest turn must be in [0, 180] degrees, got {}",
              max_rest_turn_deg);
+  SOPE_CHECK(keep_unsnapped_from >= 0 && float_weight >= 0,
+             "scene recognition: keep unsnapped from and float weight must be ≥ 0, got {} and {}",
+             keep_unsnapped_from, float_weight);
   SOPE_CHECK(max_float >= max_snap, "scene recognition: max float must be ≥ max snap ({} m), got {}",
              max_snap, max_float);
   SOPE_CHECK(max_recognition_points >= 100,

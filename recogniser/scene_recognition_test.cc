@@ -829,6 +829,46 @@ TEST(SceneVerification, PointsAnAcceptedHypothesisExplainsNoLongerCountAgainstAn
       [&] { VerifyHypotheses(scene, scene, first, options, {}, &cache); }, {"cache holds 2"});
 }
 
+// The exchanges after the greedy selection: hypothesis W explains both squares A and B at
+// once but also puts a patch in front of A where the camera saw A (free-space violations).
+// Its gain (882 points less 121 violations) beats A's or B's alone (441 each), so the
+// greedy selection accepts it first and A and B then only duplicate it; the selection
+// without W — A and B, 882 points, no violation — gains more, and the exchange finds it.
+TEST(SceneVerification, ExchangesReplaceAHypothesisThatBlocksTwoBetterOnes) {
+  const PointCloud a = Square(-0.03f, 0.6f, 0.04f);
+  const PointCloud b = Square(0.03f, 0.6f, 0.04f);
+  PointCloud scene = a;
+  scene.points.insert(scene.points.end(), b.points.begin(), b.points.end());
+  scene.normals.insert(scene.normals.end(), b.normals.begin(), b.normals.end());
+  PointCloud w = scene;
+  const PointCloud patch = Square(-0.03f, 0.59f, 0.02f);  // 1 cm in front of A's centre
+  w.points.insert(w.points.end(), patch.points.begin(), patch.points.end());
+  w.normals.insert(w.normals.end(), patch.normals.begin(), patch.normals.end());
+  const std::vector<SceneHypothesis> hypotheses = {
+      {&a, Rigid3d(), 0.0, 0.0}, {&b, Rigid3d(), 0.0, 0.0}, {&w, Rigid3d(), 0.0, 0.0}};
+  SceneVerificationOptions options;
+  options.exchange_rounds = 0;
+  const std::vector<HypothesisEvidence> greedy =
+      VerifyHypotheses(scene, scene, hypotheses, options);
+  ASSERT_TRUE(greedy[2].passes);
+  EXPECT_EQ(greedy[2].violations, static_cast<int>(patch.size()));
+  EXPECT_TRUE(greedy[2].accepted);
+  EXPECT_FALSE(greedy[0].accepted);
+  EXPECT_FALSE(greedy[1].accepted);
+  options.exchange_rounds = 4;
+  const std::vector<HypothesisEvidence> exchanged =
+      VerifyHypotheses(scene, scene, hypotheses, options);
+  EXPECT_TRUE(exchanged[0].accepted);
+  EXPECT_TRUE(exchanged[1].accepted);
+  EXPECT_FALSE(exchanged[2].accepted);
+  EXPECT_EQ(exchanged[0].duplicates + exchanged[1].duplicates, 0);
+  // W's points are all explained by A and B now.
+  EXPECT_EQ(exchanged[2].duplicates, static_cast<int>(exchanged[2].explained.size()));
+  options.exchange_rounds = -1;
+  testing::ExpectThrowsWithMessage<Error>(
+      [&] { VerifyHypotheses(scene, scene, hypotheses, options); }, {"exchange rounds"});
+}
+
 TEST(TableSegmentation, RefusesNanAndSinglePointClouds) {
   PointCloud nan_cloud;
   for (int i = 0; i < 100; ++i) nan_cloud.points.emplace_back(0.01f * i, 0.0f, 0.6f);

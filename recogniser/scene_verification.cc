@@ -299,6 +299,54 @@ void SelectGreedily(const std::vector<SceneHypothesis>& hypotheses,
   }
 }
 
+// The greedy selection from the state (`taken`, `done`) on, then its second looks: scene
+// points in a hypothesis's box that an accepted hypothesis explains (a touching object) no
+// longer count against its local_explained; the hypotheses that pass then join the
+// selection, until none does.
+void CompleteSelection(const std::vector<SceneHypothesis>& hypotheses,
+                       const std::vector<LevelExplanations>& levels,
+                       const SceneVerificationOptions& options,
+                       std::vector<HypothesisEvidence>* evidence, std::vector<uint8_t>* taken,
+                       std::vector<uint8_t>* done) {
+  std::vector<HypothesisEvidence>& out = *evidence;
+  SelectGreedily(hypotheses, options, &out, taken, done);
+  for (int round = 0; round < options.relook_rounds; ++round) {
+    bool more = false;
+    for (size_t h = 0; h < hypotheses.size(); ++h) {
+      if ((*done)[h] || out[h].passes) continue;
+      HypothesisEvidence relook = out[h];
+      Judge(levels[h], options, *taken, &relook);
+      if (relook.passes) {
+        out[h] = std::move(relook);
+        more = true;
+      }
+    }
+    if (!more) break;
+    SelectGreedily(hypotheses, options, &out, taken, done);
+  }
+}
+
+// The selection's objective, the sum of its greedy gains (in any order): scene points
+// explained, each once, less duplicate_weight per further explanation, violation_weight
+// per violation and each hypothesis's prior.
+double SelectionObjective(const std::vector<SceneHypothesis>& hypotheses,
+                          const std::vector<HypothesisEvidence>& evidence,
+                          const SceneVerificationOptions& options, size_t scene_points) {
+  std::vector<uint8_t> seen(scene_points, 0);
+  double objective = 0.0;
+  for (size_t h = 0; h < hypotheses.size(); ++h) {
+    const HypothesisEvidence& e = evidence[h];
+    if (!e.accepted) continue;
+    for (const int j : e.explained) {
+      objective += seen[j] ? -options.duplicate_weight : 1.0;
+      seen[j] = 1;
+    }
+    objective -= options.violation_weight * e.violations +
+                 hypotheses[h].prior_penalty * static_cast<double>(e.explained.size());
+  }
+  return objective;
+}
+
 }  // namespace
 
 void SceneVerificationOptions::Check() const {
@@ -325,6 +373,8 @@ void SceneVerificationOptions::Check() const {
              box_margin);
   SOPE_CHECK(relook_rounds >= 0, "scene verification: relook rounds must be ≥ 0, got {}",
              relook_rounds);
+  SOPE_CHECK(exchange_rounds >= 0, "scene verification: exchange rounds must be ≥ 0, got {}",
+             exchange_rounds);
 }
 
 struct VerificationCache::Impl {
@@ -354,26 +404,38 @@ std::vector<HypothesisEvidence> VerifyHypotheses(
     kept.evidence.push_back(
         EvaluateHypothesis(scene, hypothesis, *kept.depth, options, ignore, &kept.levels.back()));
   }
-  std::vector<HypothesisEvidence> out = kept.evidence;
   const std::vector<LevelExplanations>& levels = kept.levels;
+  std::vector<HypothesisEvidence> out = kept.evidence;
   std::vector<uint8_t> taken(scene.size(), 0), done(hypotheses.size(), 0);
-  SelectGreedily(hypotheses, options, &out, &taken, &done);
-  // Second looks: scene points in a hypothesis's box that an accepted hypothesis explains
-  // (a touching object) no longer count against its local_explained; the hypotheses that
-  // pass then join the selection, until none does.
-  for (int round = 0; round < options.relook_rounds; ++round) {
-    bool more = false;
-    for (size_t h = 0; h < hypotheses.size(); ++h) {
-      if (done[h] || out[h].passes) continue;
-      HypothesisEvidence relook = out[h];
-      Judge(levels[h], options, taken, &relook);
-      if (relook.passes) {
-        out[h] = std::move(relook);
-        more = true;
+  CompleteSelection(hypotheses, levels, options, &out, &taken, &done);
+  // Exchanges: each round, the first accepted hypothesis whose removal lets the completed
+  // selection gain more is dropped (the objective rises strictly, so this ends).
+  for (int round = 0; round < options.exchange_rounds; ++round) {
+    const double current = SelectionObjective(hypotheses, out, options, scene.size());
+    bool exchanged = false;
+    for (size_t h = 0; h < hypotheses.size() && !exchanged; ++h) {
+      if (!out[h].accepted) continue;
+      // The selection without h: the others accepted stay (with the evidence they were
+      // accepted on), every other hypothesis is judged afresh.
+      std::vector<HypothesisEvidence> trial = kept.evidence;
+      std::vector<uint8_t> trial_taken(scene.size(), 0), trial_done(hypotheses.size(), 0);
+      for (size_t g = 0; g < hypotheses.size(); ++g) {
+        if (g == h || !out[g].accepted) continue;
+        trial[g] = out[g];
+        trial_done[g] = 1;
+        for (const int j : out[g].explained) trial_taken[j] = 1;
+      }
+      trial_done[h] = 1;
+      CompleteSelection(hypotheses, levels, options, &trial, &trial_taken, &trial_done);
+      if (SelectionObjective(hypotheses, trial, options, scene.size()) > current + 0.5) {
+        trial[h] = kept.evidence[h];  // judged on its own again, not accepted
+        trial[h].duplicates = 0;
+        for (const int j : trial[h].explained) trial[h].duplicates += trial_taken[j];
+        out = std::move(trial);
+        exchanged = true;
       }
     }
-    if (!more) break;
-    SelectGreedily(hypotheses, options, &out, &taken, &done);
+    if (!exchanged) break;
   }
   return out;
 }

@@ -15,7 +15,8 @@
 // time): among the hypotheses that pass the fit tests, repeatedly accept the one with the
 // largest gain = newly explained points − duplicate_weight · points already explained −
 // violation_weight · violations, while that gain is at least min_gain_fraction of its
-// explained points.
+// explained points. The greedy choice is then improved by exchanges: an accepted
+// hypothesis is dropped when completing the selection without it gains more.
 #pragma once
 
 #include <functional>
@@ -75,6 +76,13 @@ struct SceneVerificationOptions {
   // an accepted hypothesis explains (a touching or overlapping object) stop counting
   // against its local_explained, and those that then pass are selected (0: none).
   int relook_rounds = 2;
+  // Rounds of exchanges after the greedy selection: each accepted hypothesis is in turn
+  // taken out and the selection (greedy, second looks) completed without it; the first
+  // exchange that raises the selection's objective (the sum of the accepted hypotheses'
+  // gains) is kept, and the next round starts from it (0: the greedy selection stands).
+  // A greedy choice that explains most points at once — a model over two touching
+  // objects — can block the two hypotheses that explain them better.
+  int exchange_rounds = 4;
   void Check() const;  // throws sope::Error naming the invalid value
 };
 

@@ -775,6 +775,11 @@ std::string EvalReport::ToJson() const {
     }
     q["suggestions"] = std::move(suggested);
     q["total_ms_cpu"] = o.timing.total_cpu;
+    q["stage_ms_cpu"] = {{"preprocess", o.timing.preprocess_cpu},
+                         {"features", o.timing.features_cpu},
+                         {"coarse", o.timing.coarse_cpu},
+                         {"fine", o.timing.fine_cpu},
+                         {"pose", o.timing.pose_cpu}};
     list.push_back(std::move(q));
   }
   j["outcomes"] = std::move(list);
