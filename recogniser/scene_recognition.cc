@@ -128,11 +128,44 @@ double ClassProbability(const RecognitionResult& recognition, int class_index) {
   return 0.0;
 }
 
+// Where the table seen ends, away from the camera: `far` the camera's viewing direction
+// (+z) in the table plane, `edge` the 99th percentile of p·far over the points on the plane
+// (within plane_distance of it). Not found without a plane or points on it.
+struct TableFarEdge {
+  bool found = false;
+  Eigen::Vector3f far = Eigen::Vector3f::UnitZ();
+  float edge = 0.0f;
+};
+
+TableFarEdge FarEdgeOf(const PointCloud& cloud, const TablePlane& plane, double plane_distance) {
+  TableFarEdge out;
+  if (!plane.found) return out;
+  const Eigen::Vector3f z = Eigen::Vector3f::UnitZ();
+  const Eigen::Vector3f far = z - z.dot(plane.normal) * plane.normal;
+  if (!(far.norm() > 1e-3f)) return out;  // looking straight down: no far side
+  out.far = far.normalized();
+  const size_t step = std::max<size_t>(1, cloud.size() / 20000);  // an even subsample
+  std::vector<float> along;
+  for (size_t i = 0; i < cloud.size(); i += step) {
+    const Eigen::Vector3f& p = cloud.points[i];
+    if (p.allFinite() && std::abs(plane.Height(p)) <= plane_distance) along.push_back(p.dot(out.far));
+  }
+  if (along.empty()) return out;
+  const size_t k = along.size() * 99 / 100;
+  std::nth_element(along.begin(), along.begin() + k, along.end());
+  out.edge = along[k];
+  out.found = true;
+  return out;
+}
+
 // True when `cluster` is one plane (backdrop_planar_fraction of its points within
-// backdrop_plane_distance of its least-squares plane) longer than backdrop_extent_factor ×
-// `max_diameter` along its major axis: a wall or backdrop, not an object on the table.
-bool IsBackdrop(const ObjectCluster& cluster, double max_diameter,
-                const SceneRecognitionOptions& options) {
+// backdrop_plane_distance of its least-squares plane) that is a wall or backdrop, not an
+// object on the table: longer than backdrop_extent_factor × `max_diameter` along its major
+// axis, or standing upright (its normal within 15° of the table's) at the far edge of the
+// table seen (`far_edge`: 95% of its points at most 1 cm before it) — the strip of a wall
+// behind the table that the image border cuts short.
+bool IsBackdrop(const ObjectCluster& cluster, double max_diameter, const TablePlane& plane,
+                const TableFarEdge& far_edge, const SceneRecognitionOptions& options) {
   if (options.backdrop_planar_fraction <= 0 || cluster.cloud.size() < 3) return false;
   const std::vector<Eigen::Vector3f>& points = cluster.cloud.points;
   const size_t step = std::max<size_t>(1, points.size() / 5000);  // an even subsample
@@ -153,8 +186,12 @@ bool IsBackdrop(const ObjectCluster& cluster, double max_diameter,
     on_plane += std::abs(d.dot(normal)) <= options.backdrop_plane_distance;
   }
   const size_t n = sample.size();
-  return high - low > options.backdrop_extent_factor * max_diameter &&
-         static_cast<double>(on_plane) >= options.backdrop_planar_fraction * n;
+  if (static_cast<double>(on_plane) < options.backdrop_planar_fraction * n) return false;
+  if (high - low > options.backdrop_extent_factor * max_diameter) return true;
+  if (!far_edge.found || std::abs(normal.cast<float>().dot(plane.normal)) > 0.26f) return false;
+  size_t beyond = 0;  // points at most 1 cm before the far edge, or beyond it
+  for (const Eigen::Vector3f& p : sample) beyond += p.dot(far_edge.far) >= far_edge.edge - 0.01f;
+  return static_cast<double>(beyond) >= 0.95 * n;
 }
 
 // What every step of one scene recognition reads: the inputs, the segmentation's plane and
@@ -1584,9 +1621,14 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     max_diameter = std::max(max_diameter, database_.model(m).diameter);
   }
   std::vector<ObjectCluster>& all_clusters = result.segmentation.clusters;
+  const TablePlane& table = result.segmentation.plane;
+  const TableFarEdge far_edge = all_clusters.empty()
+                                    ? TableFarEdge()
+                                    : FarEdgeOf(cloud, table, options.segmentation.plane_distance);
   const auto backdrop_end = std::stable_partition(
-      all_clusters.begin(), all_clusters.end(),
-      [&](const ObjectCluster& c) { return !IsBackdrop(c, max_diameter, options); });
+      all_clusters.begin(), all_clusters.end(), [&](const ObjectCluster& c) {
+        return !IsBackdrop(c, max_diameter, table, far_edge, options);
+      });
   result.background.assign(std::make_move_iterator(backdrop_end),
                            std::make_move_iterator(all_clusters.end()));
   all_clusters.erase(backdrop_end, all_clusters.end());

@@ -420,6 +420,49 @@ TEST(SceneRecognitionClassEvidence, AMugOnItsSideIsNotTakenForAWiderGlass) {
 // 1.4× as deep and 0.8× as high — and the mug. The box must be found as a box whose scaled dimensions
 // are the new box's (within 10%), its centre within 5 mm; the mug as the mug. (Without
 // scaling the database box explains a part of the new one only: printed for comparison.)
+// A wall at the far edge of the table, shorter than the backdrop test's extent (1.2 × the
+// largest model's diameter): standing upright at the edge of the table seen, it is a
+// backdrop too (IsBackdrop's far-edge rule); the mug in front of it is the one object.
+TEST_F(SceneRecognitionTest, AShortWallAtTheTablesFarEdgeIsABackdrop) {
+  const TableFrame frame;
+  Scene scene;
+  SceneObject table;
+  table.mesh = MakePlane(0.5, 0.3, 4);  // far edge 15 cm behind the centre
+  table.cam_from_model = frame.Pose(0, 0, 0);
+  table.cam_from_model.rotation =
+      table.cam_from_model.rotation * Eigen::AngleAxisd(M_PI, Eigen::Vector3d::UnitX()).matrix();
+  table.albedo = 0.6;
+  scene.objects.push_back(table);
+  double max_diameter = 0.0;
+  for (int m = 0; m < db_->num_models(); ++m) {
+    max_diameter = std::max(max_diameter, db_->model(m).diameter);
+  }
+  const double width = 0.8 * max_diameter;
+  SceneObject wall;
+  wall.mesh = MakePlane(width, 0.06, 4);
+  wall.cam_from_model = frame.Pose(0.0, 0.15, 0.0);
+  wall.cam_from_model.rotation =
+      wall.cam_from_model.rotation * Eigen::AngleAxisd(-M_PI / 2, Eigen::Vector3d::UnitX()).matrix();
+  wall.cam_from_model.translation += frame.cam_from_world * Eigen::Vector3d(0, 0, 0.03);
+  wall.albedo = 0.5;
+  scene.objects.push_back(wall);
+  scene.objects.push_back(
+      {MakeObject(ObjectClass::kMug, 0), frame.Pose(0.0, -0.04, 0.3), 0.8, {}});
+  const PointCloud cloud = ScanScene(scene);
+
+  const SceneRecogniser recogniser(*db_);
+  const SceneRecognitionResult result = recogniser.Recognise(cloud);
+  std::printf("wall %.0f mm wide (largest model %.0f mm):\n%s\n", 1e3 * width,
+              1e3 * max_diameter, SceneBriefReport(result).c_str());
+  ASSERT_EQ(result.background.size(), 1u);
+  const Eigen::Vector3d away = frame.cam_from_world.col(1);  // world y
+  const double behind =
+      (result.background[0].centroid.cast<double>() - frame.origin_in_cam).dot(away);
+  EXPECT_NEAR(behind, 0.15, 0.01);
+  ASSERT_EQ(result.objects.size(), 1u);
+  EXPECT_EQ(result.objects[0].best().class_name, "mug");
+}
+
 TEST(SceneRecognitionScaled, ABoxOfOtherProportionsIsFoundWithItsScale) {
   const testing::ScratchDir scratch;
   const std::unique_ptr<Database> db = ProceduralDatabase(
