@@ -148,7 +148,9 @@ TableFarEdge FarEdgeOf(const PointCloud& cloud, const TablePlane& plane, double 
   std::vector<float> along;
   for (size_t i = 0; i < cloud.size(); i += step) {
     const Eigen::Vector3f& p = cloud.points[i];
-    if (p.allFinite() && std::abs(plane.Height(p)) <= plane_distance) along.push_back(p.dot(out.far));
+    if (p.allFinite() && std::abs(plane.Height(p)) <= plane_distance) {
+      along.push_back(p.dot(out.far));
+    }
   }
   if (along.empty()) return out;
   const size_t k = along.size() * 99 / 100;
@@ -274,7 +276,9 @@ RecognitionResult RecogniseCluster(const SceneContext& ctx, const PointCloud& po
 // class: the object on the table is one of them, of its size).
 int ModelsOfClass(const Database& database, int class_index) {
   int count = 0;
-  for (int m = 0; m < database.num_models(); ++m) count += database.model(m).class_index == class_index;
+  for (int m = 0; m < database.num_models(); ++m) {
+    count += database.model(m).class_index == class_index;
+  }
   return count;
 }
 
