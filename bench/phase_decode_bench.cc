@@ -22,6 +22,7 @@
 #include <opencv2/structured_light.hpp>
 
 #include "bench/bench_support.h"
+#include "core/cv_threads.h"
 #include "decoder/decoder.h"
 #include "decoder/phase_decoder.h"
 #include "projector/patterns.h"
@@ -118,7 +119,7 @@ BENCHMARK(BM_SopeDecodePhase)
     ->ReportAggregatesOnly(true);
 
 void BM_OpenCvSinusoidalPattern(benchmark::State& state) {
-  cv::setNumThreads(1);
+  const ScopedCvThreads one_core(1);  // OpenCV's pool on this thread only
   std::vector<cv::Ptr<cv::structured_light::SinusoidalPattern>> patterns;
   for (double period : kPeriods) {
     auto params = cv::makePtr<cv::structured_light::SinusoidalPattern::Params>();
@@ -141,7 +142,6 @@ void BM_OpenCvSinusoidalPattern(benchmark::State& state) {
                                     shadow);
     benchmark::DoNotOptimize(unwrapped.data);
   }
-  cv::setNumThreads(-1);
   SetCounters(state);
 }
 BENCHMARK(BM_OpenCvSinusoidalPattern)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(2);

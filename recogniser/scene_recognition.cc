@@ -272,14 +272,14 @@ RecognitionResult RecogniseCluster(const SceneContext& ctx, const PointCloud& po
   return recognition;
 }
 
-// The number of database models of class `class_index` (an instance database has one per
+// The database models of class `class_index`, by index (an instance database has one per
 // class: the object on the table is one of them, of its size).
-int ModelsOfClass(const Database& database, int class_index) {
-  int count = 0;
+std::vector<int> ModelsOfClass(const Database& database, int class_index) {
+  std::vector<int> models;
   for (int m = 0; m < database.num_models(); ++m) {
-    count += database.model(m).class_index == class_index;
+    if (database.model(m).class_index == class_index) models.push_back(m);
   }
-  return count;
+  return models;
 }
 
 // Puts the hypothesis down on the table (when within max_snap); false when it floats above
@@ -413,13 +413,16 @@ RecognitionResult AddClusterHypotheses(const SceneContext& ctx, int cluster,
     if (s != 0) {
       h.recognition.recognised = suggestion.score >= options.recognition.assembly.min_score;
     }
-    const Hypothesis before_put_down = h;
+    // Where the recogniser put it, for a class of several models (see keep_unsnapped_from).
+    std::optional<Hypothesis> unsnapped;
+    if (on_table && options.keep_unsnapped_from > 0 &&
+        ModelsOfClass(ctx.database, suggestion.class_index).size() >= 2) {
+      unsnapped = h;
+    }
     if (on_table && !PutOnTable(ctx, &h)) continue;
-    if (on_table && options.keep_unsnapped_from > 0 && !h.rested &&
-        std::abs(h.snap) >= options.keep_unsnapped_from &&
-        ModelsOfClass(ctx.database, suggestion.class_index) >= 2) {
-      pool->hypotheses.push_back(before_put_down);  // where the recogniser put it
-      pool->hypotheses.back().lift = -h.snap;
+    if (unsnapped && !h.rested && std::abs(h.snap) >= options.keep_unsnapped_from) {
+      unsnapped->lift = -h.snap;
+      pool->hypotheses.push_back(std::move(*unsnapped));
     }
     if (on_table && options.flip_hypotheses) {
       std::optional<Hypothesis> flipped = FlippedHypothesis(ctx, h);
@@ -1168,10 +1171,7 @@ bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
       continue;
     }
     const int first_class = recognition.classes.front().class_index;
-    std::vector<int> class_models;
-    for (int m = 0; m < ctx.database.num_models(); ++m) {
-      if (ctx.database.model(m).class_index == first_class) class_models.push_back(m);
-    }
+    const std::vector<int> class_models = ModelsOfClass(ctx.database, first_class);
     for (size_t k = 0; k < recognition.suggestions.size(); ++k) {
       const Suggestion& s = recognition.suggestions[k];
       if (!s.posed || s.class_index != first_class) continue;
@@ -1222,12 +1222,12 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
   for (const Hypothesis& h : pool->hypotheses) {
     const Suggestion& s = h.recognition.suggestions[0];
     const PointCloud& surface = SurfaceOf(ctx, h);
+    const double diameter = ctx.database.model(s.model).diameter;
     const double stability =
         plane.found ? options.stability_weight *
                           std::max(0.0, CentreOfMassHeight(surface, s.cam_from_model, plane,
-                                                           ctx.database.model(s.model).diameter))
+                                                           diameter))
                     : 0.0;
-    const double diameter = ctx.database.model(s.model).diameter;
     const double lift = diameter > 0 ? options.float_weight * std::abs(h.lift) / diameter : 0.0;
     const double prior =
         stability + lift +
