@@ -53,6 +53,16 @@ struct AxisFrames {
   int lowest = 0;
   int size = 0;                                  // projector pixels on the axis
   std::vector<const cv::Mat*> pattern, inverse;  // index bit − lowest; inverse may be null
+  // 8-bit frames, every bit with its inverse: the window sums read the rows directly.
+  bool byte_pairs = false;
+
+  void SetByteFrames() {
+    byte_pairs = !pattern.empty();
+    for (size_t k = 0; k < pattern.size(); ++k) {
+      byte_pairs = byte_pairs && inverse[k] != nullptr && pattern[k]->depth() == CV_8U &&
+                   inverse[k]->depth() == CV_8U;
+    }
+  }
 };
 
 // Signed margin of bit index k at (x, y) in pattern − inverse units (grey levels, 8-bit
@@ -86,6 +96,34 @@ inline int RowSumDifference(const uint8_t* p, const uint8_t* q, int x0, int x1, 
   for (; x <= x1; ++x) sum += static_cast<int>(p[x]) - static_cast<int>(q[x]);
   return sum;
 }
+
+#if defined(__SSE2__)
+// Σ p − Σ q over `rows` rows (from p and q, `step` bytes apart) of eight bytes masked by
+// `mask` (the window's columns in each 64-bit half): two rows per psadbw. Integers: the
+// same sum as RowSumDifference row by row.
+inline int WindowSumDifference(const uint8_t* p, const uint8_t* q, size_t step, int rows,
+                               __m128i mask) {
+  const __m128i zero = _mm_setzero_si128();
+  __m128i sum = zero;
+  int r = 0;
+  for (; r + 2 <= rows; r += 2, p += 2 * step, q += 2 * step) {
+    const __m128i a = _mm_unpacklo_epi64(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)),
+                                         _mm_loadl_epi64(reinterpret_cast<const __m128i*>(p + step)));
+    const __m128i b = _mm_unpacklo_epi64(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(q)),
+                                         _mm_loadl_epi64(reinterpret_cast<const __m128i*>(q + step)));
+    sum = _mm_add_epi64(sum, _mm_sub_epi64(_mm_sad_epu8(_mm_and_si128(a, mask), zero),
+                                           _mm_sad_epu8(_mm_and_si128(b, mask), zero)));
+  }
+  if (r < rows) {
+    const __m128i low = _mm_unpacklo_epi64(mask, zero);
+    const __m128i a = _mm_and_si128(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)), low);
+    const __m128i b = _mm_and_si128(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(q)), low);
+    sum = _mm_add_epi64(sum, _mm_sub_epi64(_mm_sad_epu8(a, zero), _mm_sad_epu8(b, zero)));
+  }
+  return static_cast<int>(_mm_cvtsi128_si64(sum) +
+                          _mm_cvtsi128_si64(_mm_unpackhi_epi64(sum, sum)));
+}
+#endif
 
 // Σ Margin over the window rows [y0, y1] × columns [x0, x1] for each of the `count` bit
 // indices `bits`, into sums[bits[j]]: each bit's values added in the same row-major order
@@ -159,6 +197,34 @@ void Margins(const AxisFrames& axis, const cv::Mat* white, const cv::Mat* black,
     const float stripe = static_cast<float>(1 << (k + axis.lowest)) / std::max(gradient, 1e-3f);
     radius_of[k] = std::min(max_radius, static_cast<int>(stripe / 4.0f));
   }
+#if defined(__SSE2__)
+  if (axis.byte_pairs) {
+    // Each bit's window straight from its two frames' rows (integer sums: the same as the
+    // grouped path's), where eight bytes can be read inside the row.
+    for (int k = 0; k < num_bits; ++k) {
+      const int radius = radius_of[k];
+      const int x0 = std::max(0, x - radius), x1 = std::min(cols - 1, x + radius);
+      const int y0 = std::max(0, y - radius), y1 = std::min(rows - 1, y + radius);
+      const int width = x1 - x0 + 1, height = y1 - y0 + 1;
+      const cv::Mat& pattern = *axis.pattern[k];
+      const cv::Mat& inverse = *axis.inverse[k];
+      int sum = 0;
+      if (x0 + 8 <= cols && width <= 8 && pattern.step == inverse.step) {
+        const uint64_t bits = width == 8 ? ~uint64_t{0} : (uint64_t{1} << (8 * width)) - 1;
+        const __m128i mask = _mm_set1_epi64x(static_cast<long long>(bits));
+        sum = WindowSumDifference(pattern.ptr<uint8_t>(y0) + x0, inverse.ptr<uint8_t>(y0) + x0,
+                                  pattern.step, height, mask);
+      } else {
+        for (int yy = y0; yy <= y1; ++yy) {
+          sum += RowSumDifference(pattern.ptr<uint8_t>(yy), inverse.ptr<uint8_t>(yy), x0, x1,
+                                  cols);
+        }
+      }
+      (*margins)[k] = static_cast<float>(sum) / static_cast<float>(width * height);
+    }
+    return;
+  }
+#endif
   bool grouped[32] = {};
   for (int first = 0; first < num_bits; ++first) {
     if (grouped[first]) continue;
@@ -256,6 +322,20 @@ void FlagFirstCandidates(const int* __restrict top, const int* __restrict bottom
   }
 }
 
+// The decoded pixels of a window (FillFromConsistentNeighbours): the first `count`
+// entries of each array; room for the whole window.
+struct Neighbourhood {
+  std::vector<int> dx, dy;
+  std::vector<float> contrast;
+  std::vector<float> value[2];  // the coded axes' coordinates
+  int count = 0;
+  void Resize(int window) {
+    if (static_cast<int>(dx.size()) >= window) return;
+    for (std::vector<int>* v : {&dx, &dy}) v->resize(window);
+    for (std::vector<float>* v : {&contrast, &value[0], &value[1]}) v->resize(window);
+  }
+};
+
 struct Choice {
   float coordinate = kNaN;
   float confidence = 0.0f;
@@ -276,31 +356,47 @@ Choice ChooseBlock(const AxisFrames& axis, const std::vector<float>& margins, fl
       static_cast<float>(options.consistency.strong_bit_factor * options.min_bit_contrast);
   float best = -std::numeric_limits<float>::infinity(), second = best, third = best;
   int best_block = -1, second_block = -1;
-  for (int block = first; block <= last; ++block) {
-    const float centre = block * step + centre_offset;
-    if (std::abs(centre - predicted) > radius + 0.5f * step) continue;
-    const uint32_t word =
-        axis.code == PatternCode::kGray ? GrayFromBinary(block) : static_cast<uint32_t>(block);
-    float score = 0.0f;
-    bool contradicted = false;
-    for (size_t k = 0; k < margins.size(); ++k) {
-      const float signed_margin = ((word >> k) & 1u) ? margins[k] : -margins[k];
-      score += signed_margin;
-      contradicted |= signed_margin <= -strong;
+  // Each block's score Σ ±margin_k adds in the order of k (its own chain of additions);
+  // kLanes blocks side by side (vector lanes), then weighed in the order of the blocks.
+  constexpr int kLanes = 8;
+  const int num_bits = static_cast<int>(margins.size());
+  for (int lane0 = first; lane0 <= last; lane0 += kLanes) {
+    uint32_t word[kLanes];
+    float scores[kLanes];
+    int contradicted[kLanes];
+    for (int b = 0; b < kLanes; ++b) {
+      const uint32_t block = static_cast<uint32_t>(lane0 + b);
+      word[b] = axis.code == PatternCode::kGray ? GrayFromBinary(block) : block;
+      scores[b] = 0.0f;
+      contradicted[b] = 0;
     }
-    if (contradicted) continue;
-    if (score > best) {
-      third = second;
-      second = best;
-      second_block = best_block;
-      best = score;
-      best_block = block;
-    } else if (score > second) {
-      third = second;
-      second = score;
-      second_block = block;
-    } else if (score > third) {
-      third = score;
+    for (int k = 0; k < num_bits; ++k) {
+      const float margin = margins[k];
+      for (int b = 0; b < kLanes; ++b) {
+        const float signed_margin = ((word[b] >> k) & 1u) ? margin : -margin;
+        scores[b] += signed_margin;
+        contradicted[b] |= signed_margin <= -strong;
+      }
+    }
+    for (int b = 0; b < kLanes && lane0 + b <= last; ++b) {
+      const int block = lane0 + b;
+      const float centre = block * step + centre_offset;
+      if (std::abs(centre - predicted) > radius + 0.5f * step) continue;
+      if (contradicted[b]) continue;
+      const float score = scores[b];
+      if (score > best) {
+        third = second;
+        second = best;
+        second_block = best_block;
+        best = score;
+        best_block = block;
+      } else if (score > second) {
+        third = second;
+        second = score;
+        second_block = block;
+      } else if (score > third) {
+        third = score;
+      }
     }
   }
   Choice choice;
@@ -354,6 +450,7 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       frames_of_axis.pattern.push_back(&frames.Image(*pattern));
       frames_of_axis.inverse.push_back(inverse ? &frames.Image(*inverse) : nullptr);
     }
+    frames_of_axis.SetByteFrames();
     axes.push_back(frames_of_axis);
   }
   if (axes.empty()) return;
@@ -411,77 +508,115 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
   const float min_contrast = FloatAtLeast(options.consistency.min_contrast);
   for (int pass = 0; pass < options.consistency.passes; ++pass) {
     const cv::Mat& mask_before = map->mask;
-    const cv::Mat& x_before = map->proj_x;
-    const cv::Mat& y_before = map->proj_y;
-    // The pixels of the window around (x, y) decoded before this pass, as (dx, dy) in
-    // row-major order (every sum below adds in this order).
-    const auto decoded_neighbours = [&](int x, int y, std::vector<cv::Point>* out) {
-      out->clear();
+    // The coded axes' coordinate maps (slot 1 repeats slot 0 with one axis).
+    const cv::Mat* coordinates_before[2];
+    int axis_slot[2] = {0, 0};
+    for (size_t a = 0; a < axes.size(); ++a) {
+      coordinates_before[a] = axes[a].axis == PatternAxis::kX ? &map->proj_x : &map->proj_y;
+      axis_slot[a] = static_cast<int>(a);
+    }
+    if (axes.size() == 1) coordinates_before[1] = coordinates_before[0];
+    // The window around (x, y): its pixels decoded before this pass, in row-major order
+    // (every sum below adds in this order), with their offsets, contrasts and coordinates
+    // (each row's pointers read once; every pixel written, the count advanced by the
+    // decoded ones only: no branch on the mask).
+    const int window = (2 * radius + 1) * (2 * radius + 1);
+    const auto decoded_neighbours = [&](int x, int y, Neighbourhood* out) {
+      int count = 0;
       const int x0 = std::max(0, x - radius), x1 = std::min(cols - 1, x + radius);
+      int* __restrict dx = out->dx.data();
+      int* __restrict dy = out->dy.data();
+      float* __restrict neighbour_contrast = out->contrast.data();
+      float* __restrict value0 = out->value[0].data();
+      float* __restrict value1 = out->value[1].data();
       for (int yy = std::max(0, y - radius); yy <= std::min(rows - 1, y + radius); ++yy) {
         const uint8_t* mask_row = mask_before.ptr<uint8_t>(yy);
+        const float* contrast_row = contrast_image.ptr<float>(yy);
+        const float* row0 = coordinates_before[0]->ptr<float>(yy);
+        const float* row1 = coordinates_before[1]->ptr<float>(yy);
         for (int xx = x0; xx <= x1; ++xx) {
-          if (mask_row[xx]) out->emplace_back(xx - x, yy - y);
+          dx[count] = xx - x;
+          dy[count] = yy - y;
+          neighbour_contrast[count] = contrast_row[xx];
+          value0[count] = row0[xx];
+          value1[count] = row1[xx];
+          count += mask_row[xx] != 0;
         }
       }
+      out->count = count;
     };
     // Per thread: the working arrays of one decision.
     struct Scratch {
       std::vector<float> margins;
-      std::vector<cv::Point> neighbours;
+      Neighbourhood neighbours;
     };
     // Whether the pixel (x, y) — undecoded, with enough contrast (the callers pick such
     // candidates) — is filled, and with what (*out).
     const auto decide = [&](int x, int y, Scratch* scratch, Fill* out) -> bool {
       std::vector<float>& margins = scratch->margins;
-      std::vector<cv::Point>& neighbours = scratch->neighbours;
+      Neighbourhood& neighbours = scratch->neighbours;
+      neighbours.Resize(window);
       const float contrast = contrast_at(x, y);
       decoded_neighbours(x, y, &neighbours);
+      const int count = neighbours.count;
+      const int* dx = neighbours.dx.data();
+      const int* dy = neighbours.dy.data();
       // Too few decoded neighbours for the plane fit below.
-      if (static_cast<int>(neighbours.size()) < options.consistency.min_neighbours) return false;
+      if (count < options.consistency.min_neighbours) return false;
       // Relative to the decoded neighbours': a pixel much darker than the surface
       // around it is at a shadow's edge (partly lit, its code a mixture), whereas a
       // dim, grazing surface darkens smoothly with its neighbours.
       if (options.consistency.min_relative_contrast > 0.0) {
         float sum = 0.0f;
-        int count = 0;
-        for (const cv::Point& d : neighbours) {
-          sum += contrast_at(x + d.x, y + d.y);
-          ++count;
-        }
-        if (count > 0 && contrast < options.consistency.min_relative_contrast * sum / count) {
-          return false;
-        }
+        for (int i = 0; i < count; ++i) sum += neighbours.contrast[i];
+        if (contrast < options.consistency.min_relative_contrast * sum / count) return false;
       }
       // The neighbours' prediction of every axis first (their coordinates are in cache),
       // then the pixel's own bit margins (the frames: far more memory) only when every
       // axis has one. Least-squares plane u = c + gx·dx + gy·dy through the decoded neighbours, per
       // axis: the prediction at the pixel and the local gradient. Σ basis·basisᵀ, basis =
-      // (1, dx, dy), depends only on which neighbours are decoded: summed (element by
-      // element) and inverted once for both axes; Σ basis·u per axis.
-      PlaneFitSums geometry;
-      for (const cv::Point& d : neighbours) geometry.AddBasis(d.x, d.y);
-      const cv::Matx33d normal(geometry.n, geometry.x, geometry.y, geometry.x, geometry.xx,
-                               geometry.xy, geometry.y, geometry.xy, geometry.yy);
+      // (1, dx, dy), depends only on which neighbours are decoded: summed (in integers:
+      // the same sums as in doubles, exactly) and inverted once for both axes; Σ basis·u
+      // per axis.
+      int sx = 0, sy = 0, sxx = 0, sxy = 0, syy = 0;
+      for (int i = 0; i < count; ++i) {
+        sx += dx[i];
+        sy += dy[i];
+        sxx += dx[i] * dx[i];
+        sxy += dx[i] * dy[i];
+        syy += dy[i] * dy[i];
+      }
+      const double n = count;
+      const cv::Matx33d normal(n, sx, sy, sx, sxx, sxy, sy, sxy, syy);
       if (cv::determinant(normal) < 1e-6) return false;
       const cv::Matx33d inverse = normal.inv();
+      // Both slots' sums in one loop and their residuals in another (independent chains
+      // of additions, each in the neighbours' order), then the tests axis by axis.
+      const float* values0 = neighbours.value[0].data();
+      const float* values1 = neighbours.value[1].data();
+      PlaneFitSums sums[2];  // Σ basis·u only
+      for (int i = 0; i < count; ++i) {
+        sums[0].AddValue(dx[i], dy[i], values0[i]);
+        sums[1].AddValue(dx[i], dy[i], values1[i]);
+      }
+      cv::Vec3d planes[2];
+      for (int slot = 0; slot < 2; ++slot) {
+        planes[slot] = inverse * cv::Vec3d(sums[slot].u, sums[slot].xu, sums[slot].yu);
+      }
+      double residuals[2] = {0.0, 0.0};
+      for (int i = 0; i < count; ++i) {
+        const double fx = static_cast<float>(dx[i]), fy = static_cast<float>(dy[i]);
+        const double r0 = values0[i] - (planes[0][0] + planes[0][1] * fx + planes[0][2] * fy);
+        const double r1 = values1[i] - (planes[1][0] + planes[1][1] * fx + planes[1][2] * fy);
+        residuals[0] += r0 * r0;
+        residuals[1] += r1 * r1;
+      }
       float predicted[2], gradient[2];
       for (size_t a = 0; a < axes.size(); ++a) {
-        const cv::Mat& before = axes[a].axis == PatternAxis::kX ? x_before : y_before;
-        PlaneFitSums sums;  // Σ basis·u only
-        for (const cv::Point& d : neighbours) {
-          sums.AddValue(d.x, d.y, before.at<float>(y + d.y, x + d.x));
-        }
-        const cv::Vec3d plane = inverse * cv::Vec3d(sums.u, sums.xu, sums.yu);
-        double residual = 0.0;
-        for (const cv::Point& d : neighbours) {
-          const double r = before.at<float>(y + d.y, x + d.x) -
-                           (plane[0] + plane[1] * static_cast<float>(d.x) +
-                            plane[2] * static_cast<float>(d.y));
-          residual += r * r;
-        }
+        const cv::Vec3d& plane = planes[axis_slot[a]];
+        const double residual = residuals[axis_slot[a]];
         // Not a smooth surface around the pixel (an edge, another object): no prediction.
-        if (std::sqrt(residual / neighbours.size()) > options.consistency.max_plane_rms_px) {
+        if (std::sqrt(residual / count) > options.consistency.max_plane_rms_px) {
           return false;
         }
         predicted[a] = static_cast<float>(plane[0]);
