@@ -161,7 +161,10 @@ const std::vector<OptionField<WideningOptions>>& WideningOptions::Fields() {
       Field(&O::batch_models, "batch_models",
             "Widened models screened per batch; stop after a batch that verifies (0: all)")
           .AtLeast(0)
-          .Flag("--widen-batch")};
+          .Flag("--widen-batch"),
+      Field(&O::continue_below, "continue_below",
+            "Widened batches after the first only while the best score so far is below this")
+          .AtLeast(0.0)};
   return fields;
 }
 void WideningOptions::Check() const { CheckFields(*this, Fields(), "recognition: widening."); }

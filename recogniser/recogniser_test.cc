@@ -337,7 +337,8 @@ TEST_F(RecogniserTest, StagesCalledAloneMatchRecognise) {
 // views of the database's objects stay recognised.
 // The widened pose search in batches (WideningOptions::batch_models): while no batch
 // verifies, it screens every widened model, as the search at once does, and refines each
-// batch's share; once a batch's refined hypotheses reach below_score it stops there.
+// batch's share; once a batch's refined hypotheses reach below_score it stops there, and
+// after the first batch once the best score so far reaches continue_below.
 TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
   const auto models_of = [](const std::vector<PoseCandidate>& candidates, bool refined_only) {
     std::set<int> models;
@@ -352,8 +353,10 @@ TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
     const CoarseResult coarse = CoarseStage(*db_, query, options);
     StageContext context(*db_, query, coarse);
     const FineResult fine = FineStage(&context, options);
-    // Never verifying (a threshold above any score): every batch runs.
+    // Never verifying (a threshold above any score) and never settling for the best so
+    // far: every batch runs.
     options.widening.below_score = 1.5;
+    options.widening.continue_below = 1.5;
     options.widening.batch_models = 0;
     const std::vector<PoseCandidate> at_once = WidenSearch(&context, fine, 0.0, 4, options);
     options.widening.batch_models = 3;
@@ -366,6 +369,14 @@ TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
               std::min<size_t>(options.widening.refine_candidates, screened.size()));
     // Batches of 3 models with ⌈6 · 3 / 8⌉ = 3 refinements each: every model refined.
     EXPECT_EQ(models_of(batched, true), screened);
+    // A best score so far at or above continue_below (here any): the first batch alone,
+    // though none verifies.
+    options.widening.continue_below = 0.0;
+    const std::set<int> settled = models_of(WidenSearch(&context, fine, 0.0, 4, options), false);
+    EXPECT_GE(settled.size(), 1u);
+    EXPECT_LE(settled.size(), 3u);
+    EXPECT_TRUE(std::includes(screened.begin(), screened.end(), settled.begin(), settled.end()));
+    options.widening.continue_below = 1.5;
     // A threshold the first batch's refined hypotheses reach: that batch alone.
     options.widening.below_score = 0.05;
     const std::vector<PoseCandidate> first = WidenSearch(&context, fine, 0.0, 4, options);

@@ -253,6 +253,10 @@ const PointCloud& SurfaceOf(const SceneContext& ctx, const Hypothesis& h) {
 // empty when too few points survive its pre-processing (a sliver).
 RecognitionResult RecogniseCluster(const SceneContext& ctx, const PointCloud& points) {
   const SceneRecognitionOptions& options = ctx.options;
+  RecognitionOptions recognition_options = options.recognition;
+  if (options.widen_every_batch) {
+    recognition_options.widening.continue_below = recognition_options.widening.below_score;
+  }
   RecognitionResult recognition;
   try {
     if (static_cast<int>(points.size()) > options.max_recognition_points) {
@@ -262,9 +266,9 @@ RecognitionResult RecogniseCluster(const SceneContext& ctx, const PointCloud& po
       for (int k = 0; k < options.max_recognition_points; ++k) {
         thinned.points.push_back(points.points[static_cast<size_t>(k * step)]);
       }
-      recognition = ctx.recogniser.Recognise(thinned, options.recognition);
+      recognition = ctx.recogniser.Recognise(thinned, recognition_options);
     } else {
-      recognition = ctx.recogniser.Recognise(points, options.recognition);
+      recognition = ctx.recogniser.Recognise(points, recognition_options);
     }
   } catch (const Error&) {
     // Too few points after pre-processing (a sliver): nothing to hypothesise.

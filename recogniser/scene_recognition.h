@@ -27,6 +27,13 @@ namespace sope {
 struct SceneRecognitionOptions {
   TableSegmentationOptions segmentation;
   RecognitionOptions recognition;  // per cluster
+  // Per cluster, the widened pose search runs its batches while none verifies, whatever
+  // the best score so far (recognition.widening.continue_below is not applied): a
+  // cluster's score is lowered by its segmentation (a part of an object, two objects
+  // merged) and by unseen instances, so a 0.7 answer is not the confirmed one it is for a
+  // whole object of the database (procedural tables, six seeds: 237 rather than 239 of 287
+  // objects of the right class with continue_below applied).
+  bool widen_every_batch = true;
   SceneVerificationOptions verification;
   // Posed suggestions of each cluster that become scene hypotheses, and the least
   // recognition (alignment) score they need.

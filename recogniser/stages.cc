@@ -544,6 +544,7 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
   const int refine_per_batch =
       std::max(1, (widening.refine_candidates * batch + num_models - 1) / std::max(1, num_models));
   std::vector<PoseCandidate> wide;
+  double best_so_far = best_score;
   ScreeningRequest part = request;
   for (int first = 0; first < num_models; first += batch) {
     part.models.assign(request.models.begin() + first,
@@ -553,6 +554,8 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
         std::min(refine_per_batch, widening.refine_candidates), options);
     for (PoseCandidate& candidate : refined.candidates) wide.push_back(std::move(candidate));
     if (refined.best_score >= widening.below_score) break;
+    best_so_far = std::max(best_so_far, refined.best_score);
+    if (best_so_far >= widening.continue_below) break;
   }
   return wide;
 }
