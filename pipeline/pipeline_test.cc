@@ -320,8 +320,8 @@ TEST_F(Pipeline, RecordedFrameSetsReplayThroughTheController) {
 // database holds other instances: wine glasses 0, 3 and 12, mugs 2, 8 and 11, glasses 2,
 // 12 and 15, cans 1 and 5, boxes 0 and 1. Without the joins (join_gap 0) glass 1914's bowl
 // is taken for a mug and its foot is left unknown; joined (nothing seen through the gap)
-// it must be found as a wine glass, its centre within 3 cm. (Glass 1165, whose bowl and
-// foot both come out as unknown objects, is found neither way: printed.)
+// it must be found as a wine glass, its centre within 3 cm. (Glass 1165 is only printed:
+// once found neither way, it is now found both ways — by later second looks, not joins.)
 TEST(TableJoins, WineGlassesOnTheirSidesCutInTwoByTheirUnscannedStems) {
 #if defined(__SANITIZE_ADDRESS__)
   // One scene's exact outcome: the sanitizer build's arithmetic gives another cloud (there
@@ -379,6 +379,73 @@ TEST(TableJoins, WineGlassesOnTheirSidesCutInTwoByTheirUnscannedStems) {
                   named ? "found" : "not found");
       if (glass->instance_seed == 1914) EXPECT_EQ(named, gap > 0);
     }
+  }
+}
+
+// Siblings of two unexplained clusters joined (SceneRecognitionOptions::join_siblings), on
+// scene 10 of the procedural tabletop evaluation with seed 501: an unseen wine glass (1713)
+// stands in full view, its stem too thin to scan, so its bowl floats 8 cm over its foot —
+// two clusters, joined across the unseen gap. The database holds other instances: wine
+// glasses 0, 2, 5, 7, 8, 9, 11 and 14, glasses 0, 4, 7, 9 and 13, bowls 1, 4, 5 and 10,
+// plates 10 and 15, vase 8. The bowl alone is taken for a floating glass (dropped); the
+// wine glass whose views the joined points resemble most fits them badly (another bowl
+// shape). Without the joined clusters' siblings nothing names the glass; with them a
+// sibling nearer the joined points' size must name it a wine glass, its centre within
+// 3 cm.
+TEST(TableJoins, AStandingWineGlassWhoseBowlFloatsIsFoundByASibling) {
+#if defined(__SANITIZE_ADDRESS__)
+  GTEST_SKIP() << "depends on the Release build's exact cloud of this scene";
+#endif
+  const testing::ScratchDir scratch;
+  const std::string models = scratch.File("models");
+  WriteProceduralModels(models, {{ObjectClass::kWineGlass, {0, 2, 5, 7, 8, 9, 11, 14}},
+                                 {ObjectClass::kGlass, {0, 4, 7, 9, 13}},
+                                 {ObjectClass::kBowl, {1, 4, 5, 10}},
+                                 {ObjectClass::kPlate, {10, 15}},
+                                 {ObjectClass::kVase, {8}}});
+  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
+  db_options.views_per_model = 80;
+  WriteDatabase(scratch.File("db.sopedb"), BuildDatabase(models, db_options));
+  const std::unique_ptr<Database> db = Database::Open(scratch.File("db.sopedb"));
+
+  VirtualTableSourceOptions source_options;
+  source_options.calibration = DefaultRigCalibration();
+  source_options.patterns.projector_width = source_options.calibration.projector.width;
+  source_options.patterns.projector_height = source_options.calibration.projector.height;
+  source_options.table.clutter = 1;
+  source_options.seed = 501;
+  source_options.classes = AllObjectClasses();
+  std::sort(source_options.classes.begin(), source_options.classes.end(),
+            [](ObjectClass a, ObjectClass b) { return ToString(a) < ToString(b); });
+  VirtualTableSource source(source_options);
+  const SourceScan scan = source.Next(10);
+  ASSERT_TRUE(scan.truth.has_value());
+  const ScanObjectTruth* glass = nullptr;
+  for (const ScanObjectTruth& o : scan.truth->objects) {
+    if (o.class_name == "wine_glass") glass = &o;
+  }
+  ASSERT_NE(glass, nullptr) << "scene 10 of seed 501 is not the one described";
+  ASSERT_EQ(glass->instance_seed, 1713u) << "scene 10 of seed 501 is not the one described";
+  const PointCloud cloud = ScanFrameSet(scan.frames, scan.calibration).triangulation.cloud;
+  const Eigen::Vector3d centre = glass->cam_from_model * MakePoseTruthModel(glass->mesh).center;
+
+  const SceneRecogniser recogniser(*db);
+  SceneRecognitionOptions options;
+  // The gap between bowl and foot: 3 (the evaluation's decode) or 4 (this one's) of 10
+  // samples seen through, either side of join_max_seen 0.35; 0.45 joins them here too —
+  // the test is about what the join is recognised as.
+  options.join_max_seen = 0.45;
+  for (const bool siblings : {false, true}) {
+    options.join_siblings = siblings;
+    const SceneRecognitionResult result = recogniser.Recognise(cloud, options);
+    std::printf("join siblings %s:\n%s\n", siblings ? "on" : "off",
+                SceneBriefReport(result).c_str());
+    bool named = false;
+    for (const RecognisedObject& o : result.objects) {
+      const Eigen::Vector3d c = o.best().cam_from_model * db->model(o.best().model).center;
+      named |= (c - centre).norm() < 0.03 && o.best().class_name == "wine_glass";
+    }
+    EXPECT_EQ(named, siblings);
   }
 }
 

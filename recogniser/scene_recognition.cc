@@ -286,6 +286,30 @@ std::vector<int> ModelsOfClass(const Database& database, int class_index) {
   return models;
 }
 
+// The best posed suggestion of the class `recognition` ranks first, when it ranks it so
+// with at least verification.min_class_probability, as a hypothesis of `cluster` (the
+// source of siblings and scaled models); *class_models receives that class's models.
+std::optional<Hypothesis> FirstClassSource(const SceneContext& ctx,
+                                           const RecognitionResult& recognition, int cluster,
+                                           std::vector<int>* class_models) {
+  if (recognition.classes.empty() ||
+      recognition.classes.front().probability < ctx.options.verification.min_class_probability) {
+    return std::nullopt;
+  }
+  const int first_class = recognition.classes.front().class_index;
+  for (size_t k = 0; k < recognition.suggestions.size(); ++k) {
+    const Suggestion& s = recognition.suggestions[k];
+    if (!s.posed || s.class_index != first_class) continue;
+    Hypothesis source;
+    source.cluster = cluster;
+    source.recognition = recognition;
+    std::swap(source.recognition.suggestions[0], source.recognition.suggestions[k]);
+    *class_models = ModelsOfClass(ctx.database, first_class);
+    return source;
+  }
+  return std::nullopt;
+}
+
 // Puts the hypothesis down on the table (when within max_snap); false when it floats above
 // the table or sinks into it by more than max_float (not a resting object).
 bool SnapToTable(const SceneContext& ctx, Hypothesis* h) {
@@ -801,6 +825,10 @@ bool AddRolledOf(const SceneContext& ctx, const RecognitionResult& recognition, 
   return added;
 }
 
+bool AddSiblingsOf(const SceneContext& ctx, const Hypothesis& h,
+                   const std::vector<int>& class_models, const PointCloud& points,
+                   const std::function<const PoseQuery*()>& pose_query, HypothesisPool* pool);
+
 // Each cluster nothing explains, recognised joined with what lies within join_distance of
 // it: another such cluster, or the points of an accepted hypothesis (an object whose part
 // the shadow cut off — its pose, found without that part, may be wrong). The hypotheses go
@@ -858,18 +886,24 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     const size_t before = pool->hypotheses.size();
     const int owner = size_a >= joined.size() - size_a ? cluster_a : cluster_b;
     const RecognitionResult recognition = AddClusterHypotheses(ctx, owner, joined, pool);
+    std::optional<PoseQuery> query;
+    bool built = false;
+    const auto joined_query = [&]() -> const PoseQuery* {
+      if (!built) query = PoseQueryOfPoints(ctx, joined), built = true;
+      return query ? &*query : nullptr;
+    };
     // A handle the shadow cut off the body: turned about the body's axis and refined on
     // both parts, the model can put it where it was seen.
-    if (options.roll_steps > 1) {
-      std::optional<PoseQuery> query;
-      bool built = false;
-      AddRolledOf(
-          ctx, recognition, owner,
-          [&]() -> const PoseQuery* {
-            if (!built) query = PoseQueryOfPoints(ctx, joined), built = true;
-            return query ? &*query : nullptr;
-          },
-          pool);
+    if (options.roll_steps > 1) AddRolledOf(ctx, recognition, owner, joined_query, pool);
+    // An unseen instance two unexplained clusters make up: the siblings of the class
+    // ranked first, nearest the joined points in size (SceneRecognitionOptions::
+    // join_siblings).
+    std::vector<int> class_models;
+    if (options.join_siblings && b < num_clusters) {
+      if (const std::optional<Hypothesis> source =
+              FirstClassSource(ctx, recognition, owner, &class_models)) {
+        AddSiblingsOf(ctx, *source, class_models, joined, joined_query, pool);
+      }
     }
     spdlog::debug("{} {} and cluster {} joined ({} points): {} hypotheses",
                   b < num_clusters ? "cluster" : "the object of cluster", cluster_b, cluster_a,
@@ -980,18 +1014,19 @@ Eigen::Vector3d SizeAlongTable(const std::vector<Eigen::Vector3f>& points,
   return Eigen::Vector3d(height, a1 - a0, b1 - b0);
 }
 
-// Siblings of the cluster's hypothesis `h` (AddSizeHypotheses): the other models of its
-// class (`class_models`, the class's database models) nearest the cluster in size, in the
-// pose of `h`, ICP-refined on the cluster's points, scored against them as the recogniser
-// scores a pose, and put down on the table. Adds them to the pool; false when it added none.
+// Siblings of the hypothesis `h` (AddSizeHypotheses, and joins): the other models of its
+// class (`class_models`, the class's database models) nearest `points` (its cluster's, or
+// two parts joined) in size, in the pose of `h`, ICP-refined on those points' pose query
+// (`pose_query`, called once), scored against them as the recogniser scores a pose, and
+// put down on the table. Adds them to the pool; false when it added none.
 bool AddSiblingsOf(const SceneContext& ctx, const Hypothesis& h,
-                   const std::vector<int>& class_models, HypothesisPool* pool) {
+                   const std::vector<int>& class_models, const PointCloud& points,
+                   const std::function<const PoseQuery*()>& pose_query, HypothesisPool* pool) {
   if (ctx.options.sibling_hypotheses <= 0) return false;
   const Database& db = ctx.database;
   const Suggestion& s = h.recognition.suggestions[0];
   const Eigen::Vector3d cluster_size =
-      SizeAlongTable(ctx.clusters[h.cluster].cloud.points, Eigen::Matrix3d::Identity(),
-                     ctx.plane, true);
+      SizeAlongTable(points.points, Eigen::Matrix3d::Identity(), ctx.plane, true);
   std::vector<std::pair<double, int>> by_size;
   for (const int m : class_models) {
     if (m == s.model) continue;
@@ -1007,7 +1042,7 @@ bool AddSiblingsOf(const SceneContext& ctx, const Hypothesis& h,
     by_size.resize(ctx.options.sibling_hypotheses);
   }
   const Stopwatch watch;
-  const PoseQuery* query = ClusterPoseQuery(ctx, h.cluster, pool);
+  const PoseQuery* query = pose_query();
   if (query == nullptr) return false;
   const Rigid3d canonical_from_cam =
       Rigid3d(query->cam_from_canonical, Eigen::Vector3d::Zero()).Inverse();
@@ -1168,25 +1203,15 @@ bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
   if (ctx.options.sibling_hypotheses <= 0 && !(ctx.options.max_scale > 1.0)) return false;
   bool added = false;
   for (size_t c = 0; c < ctx.clusters.size(); ++c) {
-    const RecognitionResult& recognition = pool->cluster_results[c];
-    if (recognition.classes.empty() ||
-        recognition.classes.front().probability <
-            ctx.options.verification.min_class_probability) {
-      continue;
-    }
-    const int first_class = recognition.classes.front().class_index;
-    const std::vector<int> class_models = ModelsOfClass(ctx.database, first_class);
-    for (size_t k = 0; k < recognition.suggestions.size(); ++k) {
-      const Suggestion& s = recognition.suggestions[k];
-      if (!s.posed || s.class_index != first_class) continue;
-      Hypothesis source;
-      source.cluster = static_cast<int>(c);
-      source.recognition = recognition;
-      std::swap(source.recognition.suggestions[0], source.recognition.suggestions[k]);
-      added |= AddSiblingsOf(ctx, source, class_models, pool);
-      added |= AddScaledHypothesis(ctx, source, class_models.size(), pool);
-      break;
-    }
+    const int cluster = static_cast<int>(c);
+    std::vector<int> class_models;
+    const std::optional<Hypothesis> source =
+        FirstClassSource(ctx, pool->cluster_results[c], cluster, &class_models);
+    if (!source) continue;
+    added |= AddSiblingsOf(ctx, *source, class_models, ctx.clusters[c].cloud,
+                           [&ctx, cluster, pool] { return ClusterPoseQuery(ctx, cluster, pool); },
+                           pool);
+    added |= AddScaledHypothesis(ctx, *source, class_models.size(), pool);
   }
   return added;
 }
