@@ -828,6 +828,10 @@ bool AddRolledOf(const SceneContext& ctx, const RecognitionResult& recognition, 
 bool AddSiblingsOf(const SceneContext& ctx, const Hypothesis& h,
                    const std::vector<int>& class_models, const PointCloud& points,
                    const std::function<const PoseQuery*()>& pose_query, HypothesisPool* pool);
+bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, size_t class_models,
+                         const PointCloud& cluster,
+                         const std::function<const PoseQuery*()>& pose_query,
+                         HypothesisPool* pool);
 
 // Each cluster nothing explains, recognised joined with what lies within join_distance of
 // it: another such cluster, or the points of an accepted hypothesis (an object whose part
@@ -895,14 +899,14 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     // A handle the shadow cut off the body: turned about the body's axis and refined on
     // both parts, the model can put it where it was seen.
     if (options.roll_steps > 1) AddRolledOf(ctx, recognition, owner, joined_query, pool);
-    // An unseen instance two unexplained clusters make up: the siblings of the class
-    // ranked first, nearest the joined points in size (SceneRecognitionOptions::
-    // join_siblings).
+    // An unseen instance two unexplained clusters make up: the size looks of the class
+    // ranked first, sized to the joined points (SceneRecognitionOptions::join_size_looks).
     std::vector<int> class_models;
-    if (options.join_siblings && b < num_clusters) {
+    if (options.join_size_looks && b < num_clusters) {
       if (const std::optional<Hypothesis> source =
               FirstClassSource(ctx, recognition, owner, &class_models)) {
         AddSiblingsOf(ctx, *source, class_models, joined, joined_query, pool);
+        AddScaledHypothesis(ctx, *source, class_models.size(), joined, joined_query, pool);
       }
     }
     spdlog::debug("{} {} and cluster {} joined ({} points): {} hypotheses",
@@ -1141,11 +1145,12 @@ constexpr int kScaleRounds = 3;
 // and for a class of one database model (`class_models`: its number of models), an
 // instance whose size is known.
 bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, size_t class_models,
+                         const PointCloud& cluster,
+                         const std::function<const PoseQuery*()>& pose_query,
                          HypothesisPool* pool) {
   if (!(ctx.options.max_scale > 1.0) || class_models < 2) return false;
   const Suggestion& s = h.recognition.suggestions[0];
   const PointCloud& surface = ctx.scene_recogniser.ModelSurface(s.model, ctx.options.model_leaf);
-  const PointCloud& cluster = ctx.clusters[h.cluster].cloud;
   if (surface.empty() || cluster.size() < 10) return false;
   // What the rounds below do not change: the model's extents, the cluster's height.
   std::array<std::pair<double, double>, 3> model_ranges;
@@ -1157,7 +1162,7 @@ bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, size_t cl
   std::vector<double> heights(cluster.size());
   for (size_t i = 0; i < cluster.size(); ++i) heights[i] = ctx.plane.Height(cluster.points[i]);
   const double cluster_height = RobustRange(std::move(heights)).second;
-  const PoseQuery* query = ClusterPoseQuery(ctx, h.cluster, pool);
+  const PoseQuery* query = pose_query();
   if (query == nullptr) return false;
   const Rigid3d cam_from_canonical(query->cam_from_canonical, Eigen::Vector3d::Zero());
   const Eigen::Vector3d centre = ctx.database.model(s.model).center;
@@ -1208,10 +1213,13 @@ bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
     const std::optional<Hypothesis> source =
         FirstClassSource(ctx, pool->cluster_results[c], cluster, &class_models);
     if (!source) continue;
-    added |= AddSiblingsOf(ctx, *source, class_models, ctx.clusters[c].cloud,
-                           [&ctx, cluster, pool] { return ClusterPoseQuery(ctx, cluster, pool); },
+    const auto cluster_query = [&ctx, cluster, pool] {
+      return ClusterPoseQuery(ctx, cluster, pool);
+    };
+    added |= AddSiblingsOf(ctx, *source, class_models, ctx.clusters[c].cloud, cluster_query,
                            pool);
-    added |= AddScaledHypothesis(ctx, *source, class_models.size(), pool);
+    added |= AddScaledHypothesis(ctx, *source, class_models.size(), ctx.clusters[c].cloud,
+                                 cluster_query, pool);
   }
   return added;
 }

@@ -143,14 +143,16 @@ struct SceneRecognitionOptions {
   // stem was too thin to scan, a bottle whose shoulder the projector grazed.
   double join_gap = 0.1;
   double join_max_seen = 0.35;
-  // Two unexplained clusters joined also get the siblings (sibling_hypotheses) of their
-  // joined recognition's first class, sized to the joined points: an unseen instance in
-  // two parts (a standing wine glass whose bowl floats over its foot, the stem unscanned)
+  // Two unexplained clusters joined also get the size looks of their joined recognition's
+  // first class — its siblings (sibling_hypotheses) and the suggestion scaled (max_scale),
+  // sized to the joined points: an unseen instance in two parts (a standing wine glass
+  // whose bowl floats over its foot, the stem unscanned; a saucepan cut from its handle)
   // that no database model of its class fits as it is. Not for a cluster joined with an
-  // accepted object's points (that object had its siblings on its own cluster; a sibling
-  // stretched over it and its neighbour displaced a half-hidden mug). Procedural tables,
-  // six seeds: 239 → 240 of 287 objects of the right class, clutter 71 of 72 either way.
-  bool join_siblings = true;
+  // accepted object's points (that object had its size looks on its own cluster; a
+  // sibling stretched over it and its neighbour displaced a half-hidden mug). Procedural
+  // tables, six seeds: 239 → 240 of 287 objects of the right class with the siblings, 241
+  // with the scaled models too; clutter 71 of 72 throughout.
+  bool join_size_looks = true;
   // Rounds of these second looks (remainders, twins, segments, joins), each round on the
   // scene verification of the one before, until a round adds nothing.
   int second_look_rounds = 2;
