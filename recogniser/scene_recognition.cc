@@ -833,6 +833,22 @@ bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, size_t cl
                          const std::function<const PoseQuery*()>& pose_query,
                          HypothesisPool* pool);
 
+// The size looks (siblings and the scaled model) of the class `recognition` ranks first,
+// on `points` (a part of a cluster, or two joined) attributed to `cluster`, refined on
+// their own pose query (`query_of`, built when first needed). True when that added
+// hypotheses.
+bool AddSizeLooksOn(const SceneContext& ctx, const RecognitionResult& recognition, int cluster,
+                    const PointCloud& points, const std::function<const PoseQuery*()>& query_of,
+                    HypothesisPool* pool) {
+  std::vector<int> class_models;
+  const std::optional<Hypothesis> source =
+      FirstClassSource(ctx, recognition, cluster, &class_models);
+  if (!source) return false;
+  bool added = AddSiblingsOf(ctx, *source, class_models, points, query_of, pool);
+  added |= AddScaledHypothesis(ctx, *source, class_models.size(), points, query_of, pool);
+  return added;
+}
+
 // Each cluster nothing explains, recognised joined with what lies within join_distance of
 // it: another such cluster, or the points of an accepted hypothesis (an object whose part
 // the shadow cut off — its pose, found without that part, may be wrong). The hypotheses go
@@ -901,13 +917,8 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     if (options.roll_steps > 1) AddRolledOf(ctx, recognition, owner, joined_query, pool);
     // An unseen instance two unexplained clusters make up: the size looks of the class
     // ranked first, sized to the joined points (SceneRecognitionOptions::join_size_looks).
-    std::vector<int> class_models;
     if (options.join_size_looks && b < num_clusters) {
-      if (const std::optional<Hypothesis> source =
-              FirstClassSource(ctx, recognition, owner, &class_models)) {
-        AddSiblingsOf(ctx, *source, class_models, joined, joined_query, pool);
-        AddScaledHypothesis(ctx, *source, class_models.size(), joined, joined_query, pool);
-      }
+      AddSizeLooksOn(ctx, recognition, owner, joined, joined_query, pool);
     }
     spdlog::debug("{} {} and cluster {} joined ({} points): {} hypotheses",
                   b < num_clusters ? "cluster" : "the object of cluster", cluster_b, cluster_a,
@@ -944,7 +955,18 @@ bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_spl
       part.points.reserve(segment.size());
       for (const int i : segment) part.points.push_back(points.points[i]);
       const size_t before = pool->hypotheses.size();
-      AddClusterHypotheses(ctx, static_cast<int>(c), part, pool);
+      const RecognitionResult recognition =
+          AddClusterHypotheses(ctx, static_cast<int>(c), part, pool);
+      if (ctx.options.part_size_looks) {
+        std::optional<PoseQuery> query;
+        bool built = false;
+        AddSizeLooksOn(ctx, recognition, static_cast<int>(c), part,
+                       [&]() -> const PoseQuery* {
+                         if (!built) query = PoseQueryOfPoints(ctx, part), built = true;
+                         return query ? &*query : nullptr;
+                       },
+                       pool);
+      }
       added |= pool->hypotheses.size() > before;
     }
   }
@@ -1338,7 +1360,18 @@ bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>&
     if (static_cast<int>(remainder.size()) < options.segmentation.min_cluster_points) continue;
     pool->remainder_tried[c] = 1;
     const size_t before = pool->hypotheses.size();
-    AddClusterHypotheses(ctx, static_cast<int>(c), remainder, pool);
+    const RecognitionResult recognition =
+        AddClusterHypotheses(ctx, static_cast<int>(c), remainder, pool);
+    if (options.part_size_looks) {
+      std::optional<PoseQuery> query;
+      bool built = false;
+      AddSizeLooksOn(ctx, recognition, static_cast<int>(c), remainder,
+                     [&]() -> const PoseQuery* {
+                       if (!built) query = PoseQueryOfPoints(ctx, remainder), built = true;
+                       return query ? &*query : nullptr;
+                     },
+                     pool);
+    }
     spdlog::debug("cluster {}: {:.0f}% unexplained, its remainder of {} points gave {} hypotheses",
                   c, 100 * left[c], remainder.size(), pool->hypotheses.size() - before);
     added |= pool->hypotheses.size() > before;
