@@ -312,6 +312,35 @@ TEST_F(Pipeline, RecordedFrameSetsReplayThroughTheController) {
   ExpectErrorNaming([&] { frames.Next(2); }, "frame set 2 of 2");
 }
 
+// A database of the given procedural instances (80 views each), written in `scratch`.
+std::unique_ptr<Database> ProceduralDatabase(
+    const testing::ScratchDir& scratch,
+    const std::vector<std::pair<ObjectClass, std::vector<uint64_t>>>& instances) {
+  const std::string models = scratch.File("models");
+  WriteProceduralModels(models, instances);
+  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
+  db_options.views_per_model = 80;
+  WriteDatabase(scratch.File("db.sopedb"), BuildDatabase(models, db_options));
+  return Database::Open(scratch.File("db.sopedb"));
+}
+
+// Scene `index` of the procedural tabletop evaluation with `seed` (`sope eval --table
+// --procedural --seed SEED`): every procedural class in the order of the default
+// database's classes (by name), as the evaluation draws them, and one clutter object.
+SourceScan EvaluationTableScene(uint64_t seed, int index) {
+  VirtualTableSourceOptions source_options;
+  source_options.calibration = DefaultRigCalibration();
+  source_options.patterns.projector_width = source_options.calibration.projector.width;
+  source_options.patterns.projector_height = source_options.calibration.projector.height;
+  source_options.table.clutter = 1;
+  source_options.seed = seed;
+  source_options.classes = AllObjectClasses();
+  std::sort(source_options.classes.begin(), source_options.classes.end(),
+            [](ObjectClass a, ObjectClass b) { return ToString(a) < ToString(b); });
+  VirtualTableSource source(source_options);
+  return source.Next(index);
+}
+
 // Joins across a gap the camera did not see through (SceneRecognitionOptions::join_gap),
 // on scene 11 of the procedural tabletop evaluation with seed 601 (`sope eval --table
 // --procedural --seed 601`): two unseen wine glasses (1165, 1914) lie on their sides by a
@@ -329,30 +358,13 @@ TEST(TableJoins, WineGlassesOnTheirSidesCutInTwoByTheirUnscannedStems) {
   GTEST_SKIP() << "depends on the Release build's exact cloud of this scene";
 #endif
   const testing::ScratchDir scratch;
-  const std::string models = scratch.File("models");
-  WriteProceduralModels(models, {{ObjectClass::kWineGlass, {0, 3, 12}},
-                                 {ObjectClass::kMug, {2, 8, 11}},
-                                 {ObjectClass::kGlass, {2, 12, 15}},
-                                 {ObjectClass::kCan, {1, 5}},
-                                 {ObjectClass::kBox, {0, 1}}});
-  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
-  db_options.views_per_model = 80;
-  WriteDatabase(scratch.File("db.sopedb"), BuildDatabase(models, db_options));
-  const std::unique_ptr<Database> db = Database::Open(scratch.File("db.sopedb"));
-
-  // The evaluation's source: every procedural class, one clutter object, seed 601.
-  VirtualTableSourceOptions source_options;
-  source_options.calibration = DefaultRigCalibration();
-  source_options.patterns.projector_width = source_options.calibration.projector.width;
-  source_options.patterns.projector_height = source_options.calibration.projector.height;
-  source_options.table.clutter = 1;
-  source_options.seed = 601;
-  // In the order of the default database's classes (by name), as the evaluation draws them.
-  source_options.classes = AllObjectClasses();
-  std::sort(source_options.classes.begin(), source_options.classes.end(),
-            [](ObjectClass a, ObjectClass b) { return ToString(a) < ToString(b); });
-  VirtualTableSource source(source_options);
-  const SourceScan scan = source.Next(11);
+  const std::unique_ptr<Database> db =
+      ProceduralDatabase(scratch, {{ObjectClass::kWineGlass, {0, 3, 12}},
+                                   {ObjectClass::kMug, {2, 8, 11}},
+                                   {ObjectClass::kGlass, {2, 12, 15}},
+                                   {ObjectClass::kCan, {1, 5}},
+                                   {ObjectClass::kBox, {0, 1}}});
+  const SourceScan scan = EvaluationTableScene(601, 11);
   ASSERT_TRUE(scan.truth.has_value());
   const PointCloud cloud = ScanFrameSet(scan.frames, scan.calibration).triangulation.cloud;
   std::vector<const ScanObjectTruth*> glasses;
@@ -397,28 +409,13 @@ TEST(TableJoins, AStandingWineGlassWhoseBowlFloatsIsFoundBySizeLooks) {
   GTEST_SKIP() << "depends on the Release build's exact cloud of this scene";
 #endif
   const testing::ScratchDir scratch;
-  const std::string models = scratch.File("models");
-  WriteProceduralModels(models, {{ObjectClass::kWineGlass, {0, 2, 5, 7, 8, 9, 11, 14}},
-                                 {ObjectClass::kGlass, {0, 4, 7, 9, 13}},
-                                 {ObjectClass::kBowl, {1, 4, 5, 10}},
-                                 {ObjectClass::kPlate, {10, 15}},
-                                 {ObjectClass::kVase, {8}}});
-  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
-  db_options.views_per_model = 80;
-  WriteDatabase(scratch.File("db.sopedb"), BuildDatabase(models, db_options));
-  const std::unique_ptr<Database> db = Database::Open(scratch.File("db.sopedb"));
-
-  VirtualTableSourceOptions source_options;
-  source_options.calibration = DefaultRigCalibration();
-  source_options.patterns.projector_width = source_options.calibration.projector.width;
-  source_options.patterns.projector_height = source_options.calibration.projector.height;
-  source_options.table.clutter = 1;
-  source_options.seed = 501;
-  source_options.classes = AllObjectClasses();
-  std::sort(source_options.classes.begin(), source_options.classes.end(),
-            [](ObjectClass a, ObjectClass b) { return ToString(a) < ToString(b); });
-  VirtualTableSource source(source_options);
-  const SourceScan scan = source.Next(10);
+  const std::unique_ptr<Database> db =
+      ProceduralDatabase(scratch, {{ObjectClass::kWineGlass, {0, 2, 5, 7, 8, 9, 11, 14}},
+                                   {ObjectClass::kGlass, {0, 4, 7, 9, 13}},
+                                   {ObjectClass::kBowl, {1, 4, 5, 10}},
+                                   {ObjectClass::kPlate, {10, 15}},
+                                   {ObjectClass::kVase, {8}}});
+  const SourceScan scan = EvaluationTableScene(501, 10);
   ASSERT_TRUE(scan.truth.has_value());
   const ScanObjectTruth* glass = nullptr;
   for (const ScanObjectTruth& o : scan.truth->objects) {

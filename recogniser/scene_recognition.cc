@@ -848,6 +848,18 @@ bool AddSizeLooksOn(const SceneContext& ctx, const RecognitionResult& recognitio
   added |= AddScaledHypothesis(ctx, *source, class_models.size(), points, query_of, pool);
   return added;
 }
+// The same on `points`' own pose query, built when first needed.
+bool AddSizeLooksOn(const SceneContext& ctx, const RecognitionResult& recognition, int cluster,
+                    const PointCloud& points, HypothesisPool* pool) {
+  std::optional<PoseQuery> query;
+  bool built = false;
+  return AddSizeLooksOn(ctx, recognition, cluster, points,
+                        [&]() -> const PoseQuery* {
+                          if (!built) query = PoseQueryOfPoints(ctx, points), built = true;
+                          return query ? &*query : nullptr;
+                        },
+                        pool);
+}
 
 // Each cluster nothing explains, recognised joined with what lies within join_distance of
 // it: another such cluster, or the points of an accepted hypothesis (an object whose part
@@ -958,14 +970,7 @@ bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_spl
       const RecognitionResult recognition =
           AddClusterHypotheses(ctx, static_cast<int>(c), part, pool);
       if (ctx.options.part_size_looks) {
-        std::optional<PoseQuery> query;
-        bool built = false;
-        AddSizeLooksOn(ctx, recognition, static_cast<int>(c), part,
-                       [&]() -> const PoseQuery* {
-                         if (!built) query = PoseQueryOfPoints(ctx, part), built = true;
-                         return query ? &*query : nullptr;
-                       },
-                       pool);
+        AddSizeLooksOn(ctx, recognition, static_cast<int>(c), part, pool);
       }
       added |= pool->hypotheses.size() > before;
     }
@@ -1363,14 +1368,7 @@ bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>&
     const RecognitionResult recognition =
         AddClusterHypotheses(ctx, static_cast<int>(c), remainder, pool);
     if (options.part_size_looks) {
-      std::optional<PoseQuery> query;
-      bool built = false;
-      AddSizeLooksOn(ctx, recognition, static_cast<int>(c), remainder,
-                     [&]() -> const PoseQuery* {
-                       if (!built) query = PoseQueryOfPoints(ctx, remainder), built = true;
-                       return query ? &*query : nullptr;
-                     },
-                     pool);
+      AddSizeLooksOn(ctx, recognition, static_cast<int>(c), remainder, pool);
     }
     spdlog::debug("cluster {}: {:.0f}% unexplained, its remainder of {} points gave {} hypotheses",
                   c, 100 * left[c], remainder.size(), pool->hypotheses.size() - before);
