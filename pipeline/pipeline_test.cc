@@ -24,6 +24,7 @@
 #include "recogniser/tools/database_builder.h"
 #include "simulator/procedural_objects.h"
 #include "simulator/virtual_rig.h"
+#include "tests/procedural_database.h"
 #include "tests/test_support.h"
 
 namespace sope {
@@ -312,18 +313,6 @@ TEST_F(Pipeline, RecordedFrameSetsReplayThroughTheController) {
   ExpectErrorNaming([&] { frames.Next(2); }, "frame set 2 of 2");
 }
 
-// A database of the given procedural instances (80 views each), written in `scratch`.
-std::unique_ptr<Database> ProceduralDatabase(
-    const testing::ScratchDir& scratch,
-    const std::vector<std::pair<ObjectClass, std::vector<uint64_t>>>& instances) {
-  const std::string models = scratch.File("models");
-  WriteProceduralModels(models, instances);
-  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
-  db_options.views_per_model = 80;
-  WriteDatabase(scratch.File("db.sopedb"), BuildDatabase(models, db_options));
-  return Database::Open(scratch.File("db.sopedb"));
-}
-
 // Scene `index` of the procedural tabletop evaluation with `seed` (`sope eval --table
 // --procedural --seed SEED`): every procedural class in the order of the default
 // database's classes (by name), as the evaluation draws them, and one clutter object.
@@ -359,7 +348,7 @@ TEST(TableJoins, WineGlassesOnTheirSidesCutInTwoByTheirUnscannedStems) {
 #endif
   const testing::ScratchDir scratch;
   const std::unique_ptr<Database> db =
-      ProceduralDatabase(scratch, {{ObjectClass::kWineGlass, {0, 3, 12}},
+      testing::ProceduralDatabase(scratch, {{ObjectClass::kWineGlass, {0, 3, 12}},
                                    {ObjectClass::kMug, {2, 8, 11}},
                                    {ObjectClass::kGlass, {2, 12, 15}},
                                    {ObjectClass::kCan, {1, 5}},
@@ -410,7 +399,7 @@ TEST(TableJoins, AStandingWineGlassWhoseBowlFloatsIsFoundBySizeLooks) {
 #endif
   const testing::ScratchDir scratch;
   const std::unique_ptr<Database> db =
-      ProceduralDatabase(scratch, {{ObjectClass::kWineGlass, {0, 2, 5, 7, 8, 9, 11, 14}},
+      testing::ProceduralDatabase(scratch, {{ObjectClass::kWineGlass, {0, 2, 5, 7, 8, 9, 11, 14}},
                                    {ObjectClass::kGlass, {0, 4, 7, 9, 13}},
                                    {ObjectClass::kBowl, {1, 4, 5, 10}},
                                    {ObjectClass::kPlate, {10, 15}},

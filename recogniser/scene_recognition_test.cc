@@ -30,6 +30,7 @@
 #include "simulator/procedural_objects.h"
 #include "simulator/simulate_scan.h"
 #include "simulator/virtual_rig.h"
+#include "tests/procedural_database.h"
 #include "tests/test_support.h"
 
 namespace sope {
@@ -281,17 +282,6 @@ const RecognisedObject* LastOfClass(const SceneRecognitionResult& result,
   return found;
 }
 
-std::unique_ptr<Database> ProceduralDatabase(
-    const testing::ScratchDir& scratch,
-    const std::vector<std::pair<ObjectClass, std::vector<uint64_t>>>& instances) {
-  const std::string models = scratch.File("models");
-  WriteProceduralModels(models, instances);
-  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
-  db_options.views_per_model = 80;
-  WriteDatabase(scratch.File("procedural.sopedb"), BuildDatabase(models, db_options));
-  return Database::Open(scratch.File("procedural.sopedb"));
-}
-
 // Sibling hypotheses (SceneRecognitionOptions::sibling_hypotheses): the database holds
 // procedural bowls 0, 1, 5 and 12 and mug 0; on the table stand two unseen bowls, 1192
 // (12.4 cm wide, 5.3 cm high: bowl 1's size) and 1019 (16.7 × 7.6 cm: nearest bowl 12),
@@ -301,7 +291,7 @@ std::unique_ptr<Database> ProceduralDatabase(
 // which passes the instance-level tests; the comparison is printed.)
 TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSize) {
   const testing::ScratchDir scratch;
-  const std::unique_ptr<Database> db = ProceduralDatabase(
+  const std::unique_ptr<Database> db = testing::ProceduralDatabase(
       scratch, {{ObjectClass::kBowl, {0, 1, 5, 12}}, {ObjectClass::kMug, {0}}});
 
   const TableFrame frame;
@@ -369,7 +359,7 @@ TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSi
 // mug.
 TEST(SceneRecognitionClassEvidence, AMugOnItsSideIsNotTakenForAWiderGlass) {
   const testing::ScratchDir scratch;
-  const std::unique_ptr<Database> db = ProceduralDatabase(
+  const std::unique_ptr<Database> db = testing::ProceduralDatabase(
       scratch, {{ObjectClass::kMug, {2, 8}}, {ObjectClass::kGlass, {12, 15}}});
 
   const TableFrame frame;
@@ -473,7 +463,7 @@ TEST_F(SceneRecognitionTest, AShortWallAtTheTablesFarEdgeIsABackdrop) {
 
 TEST(SceneRecognitionScaled, ABoxOfOtherProportionsIsFoundWithItsScale) {
   const testing::ScratchDir scratch;
-  const std::unique_ptr<Database> db = ProceduralDatabase(
+  const std::unique_ptr<Database> db = testing::ProceduralDatabase(
       scratch, {{ObjectClass::kBox, {3, 10}}, {ObjectClass::kMug, {0}}});
   const TriangleMesh box = MakeObject(ObjectClass::kBox, 3);
   const TriangleMesh other_box = MakeObject(ObjectClass::kBox, 10);
@@ -549,7 +539,7 @@ TEST(SceneRecognitionScaled, ABoxOfOtherProportionsIsFoundWithItsScale) {
 // comparison.
 TEST(SceneRecognitionUnsnapped, ALyingCanWiderThanTheDatabaseCansIsFound) {
   const testing::ScratchDir scratch;
-  const std::unique_ptr<Database> db = ProceduralDatabase(
+  const std::unique_ptr<Database> db = testing::ProceduralDatabase(
       scratch, {{ObjectClass::kCan, {0, 3}}, {ObjectClass::kGlass, {0}}, {ObjectClass::kMug, {0}}});
   TriangleMesh can = MakeObject(ObjectClass::kCan, 3);
   float radius = 0.0f;
