@@ -107,10 +107,12 @@ inline int WindowSumDifference(const uint8_t* p, const uint8_t* q, size_t step, 
   __m128i sum = zero;
   int r = 0;
   for (; r + 2 <= rows; r += 2, p += 2 * step, q += 2 * step) {
-    const __m128i a = _mm_unpacklo_epi64(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)),
-                                         _mm_loadl_epi64(reinterpret_cast<const __m128i*>(p + step)));
-    const __m128i b = _mm_unpacklo_epi64(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(q)),
-                                         _mm_loadl_epi64(reinterpret_cast<const __m128i*>(q + step)));
+    const __m128i a =
+        _mm_unpacklo_epi64(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)),
+                           _mm_loadl_epi64(reinterpret_cast<const __m128i*>(p + step)));
+    const __m128i b =
+        _mm_unpacklo_epi64(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(q)),
+                           _mm_loadl_epi64(reinterpret_cast<const __m128i*>(q + step)));
     sum = _mm_add_epi64(sum, _mm_sub_epi64(_mm_sad_epu8(_mm_and_si128(a, mask), zero),
                                            _mm_sad_epu8(_mm_and_si128(b, mask), zero)));
   }
@@ -510,10 +512,8 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     const cv::Mat& mask_before = map->mask;
     // The coded axes' coordinate maps (slot 1 repeats slot 0 with one axis).
     const cv::Mat* coordinates_before[2];
-    int axis_slot[2] = {0, 0};
     for (size_t a = 0; a < axes.size(); ++a) {
       coordinates_before[a] = axes[a].axis == PatternAxis::kX ? &map->proj_x : &map->proj_y;
-      axis_slot[a] = static_cast<int>(a);
     }
     if (axes.size() == 1) coordinates_before[1] = coordinates_before[0];
     // The window around (x, y): its pixels decoded before this pass, in row-major order
@@ -613,8 +613,8 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       }
       float predicted[2], gradient[2];
       for (size_t a = 0; a < axes.size(); ++a) {
-        const cv::Vec3d& plane = planes[axis_slot[a]];
-        const double residual = residuals[axis_slot[a]];
+        const cv::Vec3d& plane = planes[a];
+        const double residual = residuals[a];
         // Not a smooth surface around the pixel (an edge, another object): no prediction.
         if (std::sqrt(residual / count) > options.consistency.max_plane_rms_px) {
           return false;

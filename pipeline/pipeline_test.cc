@@ -330,6 +330,17 @@ SourceScan EvaluationTableScene(uint64_t seed, int index) {
   return source.Next(index);
 }
 
+// Whether `result` names an object `class_name` whose model centre lies within 3 cm of
+// `centre` (camera frame).
+bool NamedNear(const SceneRecognitionResult& result, const Database& db,
+               const std::string& class_name, const Eigen::Vector3d& centre) {
+  for (const RecognisedObject& o : result.objects) {
+    const Eigen::Vector3d c = o.best().cam_from_model * db.model(o.best().model).center;
+    if ((c - centre).norm() < 0.03 && o.best().class_name == class_name) return true;
+  }
+  return false;
+}
+
 // Joins across a gap the camera did not see through (SceneRecognitionOptions::join_gap),
 // on scene 11 of the procedural tabletop evaluation with seed 601 (`sope eval --table
 // --procedural --seed 601`): two unseen wine glasses (1165, 1914) lie on their sides by a
@@ -347,12 +358,12 @@ TEST(TableJoins, WineGlassesOnTheirSidesCutInTwoByTheirUnscannedStems) {
   GTEST_SKIP() << "depends on the Release build's exact cloud of this scene";
 #endif
   const testing::ScratchDir scratch;
-  const std::unique_ptr<Database> db =
-      testing::ProceduralDatabase(scratch, {{ObjectClass::kWineGlass, {0, 3, 12}},
-                                   {ObjectClass::kMug, {2, 8, 11}},
-                                   {ObjectClass::kGlass, {2, 12, 15}},
-                                   {ObjectClass::kCan, {1, 5}},
-                                   {ObjectClass::kBox, {0, 1}}});
+  const std::unique_ptr<Database> db = testing::ProceduralDatabase(
+      scratch, {{ObjectClass::kWineGlass, {0, 3, 12}},
+                {ObjectClass::kMug, {2, 8, 11}},
+                {ObjectClass::kGlass, {2, 12, 15}},
+                {ObjectClass::kCan, {1, 5}},
+                {ObjectClass::kBox, {0, 1}}});
   const SourceScan scan = EvaluationTableScene(601, 11);
   ASSERT_TRUE(scan.truth.has_value());
   const PointCloud cloud = ScanFrameSet(scan.frames, scan.calibration).triangulation.cloud;
@@ -371,14 +382,12 @@ TEST(TableJoins, WineGlassesOnTheirSidesCutInTwoByTheirUnscannedStems) {
                 SceneBriefReport(result).c_str());
     for (const ScanObjectTruth* glass : glasses) {
       const Eigen::Vector3d centre = glass->cam_from_model * MakePoseTruthModel(glass->mesh).center;
-      bool named = false;
-      for (const RecognisedObject& o : result.objects) {
-        const Eigen::Vector3d c = o.best().cam_from_model * db->model(o.best().model).center;
-        named |= (c - centre).norm() < 0.03 && o.best().class_name == "wine_glass";
-      }
+      const bool named = NamedNear(result, *db, "wine_glass", centre);
       std::printf("  wine glass %llu: %s\n", static_cast<unsigned long long>(glass->instance_seed),
                   named ? "found" : "not found");
-      if (glass->instance_seed == 1914) EXPECT_EQ(named, gap > 0);
+      if (glass->instance_seed == 1914) {
+        EXPECT_EQ(named, gap > 0);
+      }
     }
   }
 }
@@ -398,12 +407,12 @@ TEST(TableJoins, AStandingWineGlassWhoseBowlFloatsIsFoundBySizeLooks) {
   GTEST_SKIP() << "depends on the Release build's exact cloud of this scene";
 #endif
   const testing::ScratchDir scratch;
-  const std::unique_ptr<Database> db =
-      testing::ProceduralDatabase(scratch, {{ObjectClass::kWineGlass, {0, 2, 5, 7, 8, 9, 11, 14}},
-                                   {ObjectClass::kGlass, {0, 4, 7, 9, 13}},
-                                   {ObjectClass::kBowl, {1, 4, 5, 10}},
-                                   {ObjectClass::kPlate, {10, 15}},
-                                   {ObjectClass::kVase, {8}}});
+  const std::unique_ptr<Database> db = testing::ProceduralDatabase(
+      scratch, {{ObjectClass::kWineGlass, {0, 2, 5, 7, 8, 9, 11, 14}},
+                {ObjectClass::kGlass, {0, 4, 7, 9, 13}},
+                {ObjectClass::kBowl, {1, 4, 5, 10}},
+                {ObjectClass::kPlate, {10, 15}},
+                {ObjectClass::kVase, {8}}});
   const SourceScan scan = EvaluationTableScene(501, 10);
   ASSERT_TRUE(scan.truth.has_value());
   const ScanObjectTruth* glass = nullptr;
@@ -426,11 +435,7 @@ TEST(TableJoins, AStandingWineGlassWhoseBowlFloatsIsFoundBySizeLooks) {
     const SceneRecognitionResult result = recogniser.Recognise(cloud, options);
     std::printf("join size looks %s:\n%s\n", size_looks ? "on" : "off",
                 SceneBriefReport(result).c_str());
-    bool named = false;
-    for (const RecognisedObject& o : result.objects) {
-      const Eigen::Vector3d c = o.best().cam_from_model * db->model(o.best().model).center;
-      named |= (c - centre).norm() < 0.03 && o.best().class_name == "wine_glass";
-    }
+    const bool named = NamedNear(result, *db, "wine_glass", centre);
     EXPECT_EQ(named, size_looks);
   }
 }

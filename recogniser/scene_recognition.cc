@@ -833,13 +833,34 @@ bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, size_t cl
                          const std::function<const PoseQuery*()>& pose_query,
                          HypothesisPool* pool);
 
+// The pose query of `points` (a part of a cluster, or two joined), built when first asked
+// for (the looks that need it may not be taken); Getter() for the looks' `query_of`.
+class LazyPoseQuery {
+ public:
+  LazyPoseQuery(const SceneContext& ctx, const PointCloud& points) : ctx_(ctx), points_(points) {}
+  const PoseQuery* Get() {
+    if (!built_) query_ = PoseQueryOfPoints(ctx_, points_), built_ = true;
+    return query_ ? &*query_ : nullptr;
+  }
+  std::function<const PoseQuery*()> Getter() {
+    return [this] { return Get(); };
+  }
+
+ private:
+  const SceneContext& ctx_;
+  const PointCloud& points_;
+  std::optional<PoseQuery> query_;
+  bool built_ = false;
+};
+
 // The size looks (siblings and the scaled model) of the class `recognition` ranks first,
-// on `points` (a part of a cluster, or two joined) attributed to `cluster`, refined on
-// their own pose query (`query_of`, built when first needed). True when that added
+// on `points` (a cluster, a part of one, or two joined) attributed to `cluster`, refined on
+// their pose query (`query_of`, called when first needed). True when that added
 // hypotheses.
 bool AddSizeLooksOn(const SceneContext& ctx, const RecognitionResult& recognition, int cluster,
                     const PointCloud& points, const std::function<const PoseQuery*()>& query_of,
                     HypothesisPool* pool) {
+  if (ctx.options.sibling_hypotheses <= 0 && !(ctx.options.max_scale > 1.0)) return false;
   std::vector<int> class_models;
   const std::optional<Hypothesis> source =
       FirstClassSource(ctx, recognition, cluster, &class_models);
@@ -847,18 +868,6 @@ bool AddSizeLooksOn(const SceneContext& ctx, const RecognitionResult& recognitio
   bool added = AddSiblingsOf(ctx, *source, class_models, points, query_of, pool);
   added |= AddScaledHypothesis(ctx, *source, class_models.size(), points, query_of, pool);
   return added;
-}
-// The same on `points`' own pose query, built when first needed.
-bool AddSizeLooksOn(const SceneContext& ctx, const RecognitionResult& recognition, int cluster,
-                    const PointCloud& points, HypothesisPool* pool) {
-  std::optional<PoseQuery> query;
-  bool built = false;
-  return AddSizeLooksOn(ctx, recognition, cluster, points,
-                        [&]() -> const PoseQuery* {
-                          if (!built) query = PoseQueryOfPoints(ctx, points), built = true;
-                          return query ? &*query : nullptr;
-                        },
-                        pool);
 }
 
 // Each cluster nothing explains, recognised joined with what lies within join_distance of
@@ -918,19 +927,16 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     const size_t before = pool->hypotheses.size();
     const int owner = size_a >= joined.size() - size_a ? cluster_a : cluster_b;
     const RecognitionResult recognition = AddClusterHypotheses(ctx, owner, joined, pool);
-    std::optional<PoseQuery> query;
-    bool built = false;
-    const auto joined_query = [&]() -> const PoseQuery* {
-      if (!built) query = PoseQueryOfPoints(ctx, joined), built = true;
-      return query ? &*query : nullptr;
-    };
+    LazyPoseQuery joined_query(ctx, joined);
     // A handle the shadow cut off the body: turned about the body's axis and refined on
     // both parts, the model can put it where it was seen.
-    if (options.roll_steps > 1) AddRolledOf(ctx, recognition, owner, joined_query, pool);
+    if (options.roll_steps > 1) {
+      AddRolledOf(ctx, recognition, owner, joined_query.Getter(), pool);
+    }
     // An unseen instance two unexplained clusters make up: the size looks of the class
     // ranked first, sized to the joined points (SceneRecognitionOptions::join_size_looks).
     if (options.join_size_looks && b < num_clusters) {
-      AddSizeLooksOn(ctx, recognition, owner, joined, joined_query, pool);
+      AddSizeLooksOn(ctx, recognition, owner, joined, joined_query.Getter(), pool);
     }
     spdlog::debug("{} {} and cluster {} joined ({} points): {} hypotheses",
                   b < num_clusters ? "cluster" : "the object of cluster", cluster_b, cluster_a,
@@ -970,7 +976,8 @@ bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_spl
       const RecognitionResult recognition =
           AddClusterHypotheses(ctx, static_cast<int>(c), part, pool);
       if (ctx.options.part_size_looks) {
-        AddSizeLooksOn(ctx, recognition, static_cast<int>(c), part, pool);
+        LazyPoseQuery part_query(ctx, part);
+        AddSizeLooksOn(ctx, recognition, static_cast<int>(c), part, part_query.Getter(), pool);
       }
       added |= pool->hypotheses.size() > before;
     }
@@ -1232,21 +1239,12 @@ bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, size_t cl
 bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
   if (pool->size_looks_taken) return false;
   pool->size_looks_taken = true;
-  if (ctx.options.sibling_hypotheses <= 0 && !(ctx.options.max_scale > 1.0)) return false;
   bool added = false;
   for (size_t c = 0; c < ctx.clusters.size(); ++c) {
     const int cluster = static_cast<int>(c);
-    std::vector<int> class_models;
-    const std::optional<Hypothesis> source =
-        FirstClassSource(ctx, pool->cluster_results[c], cluster, &class_models);
-    if (!source) continue;
-    const auto cluster_query = [&ctx, cluster, pool] {
-      return ClusterPoseQuery(ctx, cluster, pool);
-    };
-    added |= AddSiblingsOf(ctx, *source, class_models, ctx.clusters[c].cloud, cluster_query,
-                           pool);
-    added |= AddScaledHypothesis(ctx, *source, class_models.size(), ctx.clusters[c].cloud,
-                                 cluster_query, pool);
+    added |= AddSizeLooksOn(ctx, pool->cluster_results[c], cluster, ctx.clusters[c].cloud,
+                            [&ctx, cluster, pool] { return ClusterPoseQuery(ctx, cluster, pool); },
+                            pool);
   }
   return added;
 }
@@ -1368,7 +1366,9 @@ bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>&
     const RecognitionResult recognition =
         AddClusterHypotheses(ctx, static_cast<int>(c), remainder, pool);
     if (options.part_size_looks) {
-      AddSizeLooksOn(ctx, recognition, static_cast<int>(c), remainder, pool);
+      LazyPoseQuery remainder_query(ctx, remainder);
+      AddSizeLooksOn(ctx, recognition, static_cast<int>(c), remainder, remainder_query.Getter(),
+                     pool);
     }
     spdlog::debug("cluster {}: {:.0f}% unexplained, its remainder of {} points gave {} hypotheses",
                   c, 100 * left[c], remainder.size(), pool->hypotheses.size() - before);
