@@ -260,6 +260,13 @@ SourceScan VirtualTableSource::Next(int index, const CaptureProgress& progress) 
   }
   spdlog::info("scan {}: table scene {}: camera {:.0f}° down, {}", index,
                options_.seed + static_cast<uint64_t>(index), scene_.camera_tilt_deg, names);
+  for (const TableObjectTruth& object : scene_.objects) {
+    const Eigen::Vector3d& t = object.cam_from_model.translation;
+    const Eigen::Vector3d z = object.cam_from_model.rotation.col(2);
+    spdlog::debug("scan {}: truth {}: model origin ({:.4f}, {:.4f}, {:.4f}), model z axis "
+                  "({:.3f}, {:.3f}, {:.3f})", index, object.model, t.x(), t.y(), t.z(), z.x(),
+                  z.y(), z.z());
+  }
   SourceScan scan;
   scan.calibration = options_.calibration;
   scan.source = "virtual table";

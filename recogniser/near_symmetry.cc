@@ -3,9 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
+#include <optional>
 #include <random>
 #include <unordered_set>
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 
 #include "recogniser/features.h"
@@ -112,6 +115,56 @@ NearSymmetryAxis FindNearSymmetryAxis(const std::vector<Eigen::Vector3f>& points
   }
   best.found = best.asymmetric_fraction <= max_asymmetric_fraction;
   return best;
+}
+
+std::optional<Eigen::Vector3d> StandingAxisPoint(const std::vector<Eigen::Vector3f>& points,
+                                                 const std::vector<Eigen::Vector3f>& normals,
+                                                 const Eigen::Matrix3d& cam_from_points,
+                                                 const Eigen::Vector3d& up, double offset) {
+  const Eigen::Vector3d u = up.unitOrthogonal(), v = up.cross(u);
+  struct Line {
+    Eigen::Vector2d point, direction;
+    double weight;
+  };
+  std::vector<Line> lines;
+  lines.reserve(points.size());
+  for (size_t i = 0; i < points.size() && i < normals.size(); ++i) {
+    const Eigen::Vector3d p = cam_from_points * points[i].cast<double>();
+    const Eigen::Vector3d m = cam_from_points * normals[i].cast<double>();
+    const Eigen::Vector2d d(u.dot(m), v.dot(m));
+    const double weight = d.squaredNorm();
+    if (!(weight >= 0.04) || !p.allFinite()) continue;
+    lines.push_back({Eigen::Vector2d(u.dot(p), v.dot(p)), d / std::sqrt(weight), weight});
+  }
+  constexpr int kMinLines = 20;
+  std::optional<Eigen::Vector2d> centre;
+  std::vector<double> distances(lines.size());
+  double keep = std::numeric_limits<double>::infinity();
+  for (int round = 0; round < 3; ++round) {
+    Eigen::Matrix2d a = Eigen::Matrix2d::Zero();
+    Eigen::Vector2d b = Eigen::Vector2d::Zero();
+    int used = 0;
+    for (size_t i = 0; i < lines.size(); ++i) {
+      if (centre && distances[i] > keep) continue;
+      const Eigen::Matrix2d across =
+          Eigen::Matrix2d::Identity() - lines[i].direction * lines[i].direction.transpose();
+      a += lines[i].weight * across;
+      b += lines[i].weight * across * lines[i].point;
+      ++used;
+    }
+    // Both eigenvalues of `a` well away from 0: the lines cross, not all parallel.
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> solver(a);
+    if (used < kMinLines || !(solver.eigenvalues()[0] > 0.05 * a.trace())) return std::nullopt;
+    centre = a.ldlt().solve(b);
+    for (size_t i = 0; i < lines.size(); ++i) {
+      const Eigen::Vector2d off = *centre - lines[i].point;
+      distances[i] = (off - lines[i].direction * lines[i].direction.dot(off)).norm();
+    }
+    std::vector<double> sorted = distances;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    keep = std::max(3.0 * sorted[sorted.size() / 2], 0.005);
+  }
+  return centre->x() * u + centre->y() * v - offset * up;
 }
 
 }  // namespace sope

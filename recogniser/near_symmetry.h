@@ -13,6 +13,7 @@
 // turning changes nothing; a mug ~0.05–0.2). No PCL in this header.
 #pragma once
 
+#include <optional>
 #include <vector>
 
 #include <Eigen/Core>
@@ -37,5 +38,20 @@ struct NearSymmetryAxis {
 NearSymmetryAxis FindNearSymmetryAxis(const std::vector<Eigen::Vector3f>& points, double tolerance,
                                       double min_wall_fraction = 0.2,
                                       double max_asymmetric_fraction = 0.35);
+
+// The standing axis of a surface seen on a table: the line along the table's normal `up`
+// (unit, camera frame; the table is up·x + offset = 0) nearest, in least squares, to the
+// lines through each point along its normal projected onto the table — each weighted by the
+// square of its normal's horizontal share, those under 0.2 left out —, solved three times,
+// the second and third on the lines within max(3 × the median distance, 5 mm) of the
+// previous solution. For a standing body of revolution, its axis (every normal meets it);
+// for a standing box, the crossing of its visible sides' centre lines. `points` and
+// `normals` in a frame `cam_from_points` turns into the camera's. Returns the axis's point
+// on the table plane (camera frame); empty when the normals do not pin a point (all
+// parallel, or fewer than 20 lines).
+std::optional<Eigen::Vector3d> StandingAxisPoint(const std::vector<Eigen::Vector3f>& points,
+                                                 const std::vector<Eigen::Vector3f>& normals,
+                                                 const Eigen::Matrix3d& cam_from_points,
+                                                 const Eigen::Vector3d& up, double offset);
 
 }  // namespace sope

@@ -1,6 +1,7 @@
 #include "recogniser/near_symmetry.h"
 
 #include <cmath>
+#include <optional>
 #include <vector>
 
 #include <Eigen/Geometry>
@@ -90,6 +91,107 @@ TEST(NearSymmetryAxis, ABoxHasNone) {
   const NearSymmetryAxis box = FindNearSymmetryAxis(points, 0.0045);
   EXPECT_FALSE(box.found) << "asymmetric fraction " << box.asymmetric_fraction;
   EXPECT_GT(box.asymmetric_fraction, 0.35);
+}
+
+// The side of a standing surface a camera at `camera` sees: the points (and their outward
+// normals) of `points`/`normals` facing it, handed over in a frame turned by `turn`
+// (cam_from_points = turn) with a little deterministic noise on the normals (±3°).
+struct SeenSurface {
+  std::vector<Eigen::Vector3f> points, normals;
+};
+SeenSurface SeenFrom(const std::vector<Eigen::Vector3f>& points,
+                     const std::vector<Eigen::Vector3f>& normals, const Eigen::Vector3d& camera,
+                     const Eigen::Matrix3d& turn) {
+  SeenSurface seen;
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3d p = points[i].cast<double>();
+    Eigen::Vector3d n = normals[i].cast<double>();
+    if (n.dot(camera - p) <= 0) continue;
+    const double wobble = 0.05 * std::sin(12.9898 * static_cast<double>(i));
+    n = (n + wobble * n.unitOrthogonal()).normalized();
+    seen.points.push_back((turn.transpose() * p).cast<float>());
+    seen.normals.push_back((turn.transpose() * n).cast<float>());
+  }
+  return seen;
+}
+
+// The table is z = 0 (up +z, offset 0) in the frame the camera's results are given in; the
+// points are handed over turned, so the frame change is exercised too.
+const Eigen::Vector3d kUp = Eigen::Vector3d::UnitZ();
+const Eigen::Vector3d kCamera(0.1, -0.5, 0.4);  // ~40° down onto the objects
+const Eigen::Matrix3d kTurn =
+    Eigen::AngleAxisd(0.9, Eigen::Vector3d(0.3, -1, 0.4).normalized()).toRotationMatrix();
+
+TEST(StandingAxis, AStandingCylinderSeenFromOneSideGivesItsAxis) {
+  // A mug-sized cylinder standing at (0.03, 0.02) on the table, its wall and top seen from
+  // the camera (about half of the wall): the axis must be found within 1 mm — and with a
+  // handle standing off the wall, within 2 mm.
+  const Eigen::Vector3d foot(0.03, 0.02, 0.0);
+  for (const bool handle : {false, true}) {
+    const std::vector<Eigen::Vector3f> body = Cylinder(0.04, 0.1, handle);
+    std::vector<Eigen::Vector3f> points, normals;
+    for (const Eigen::Vector3f& q : body) {
+      const Eigen::Vector3d p = q.cast<double>();
+      Eigen::Vector3d n;
+      if (p.z() <= 1e-9) continue;  // the base rests on the table
+      if (p.z() >= 0.1 - 1e-9) {
+        n = kUp;
+      } else if (p.head<2>().norm() > 0.04 + 1e-6) {
+        n = Eigen::Vector3d(0, p.y() > 0 ? 1 : -1, 0);  // the handle's faces
+      } else {
+        n = Eigen::Vector3d(p.x(), p.y(), 0).normalized();
+      }
+      points.push_back((p + foot).cast<float>());
+      normals.push_back(n.cast<float>());
+    }
+    const SeenSurface seen = SeenFrom(points, normals, kCamera, kTurn);
+    const std::optional<Eigen::Vector3d> axis =
+        StandingAxisPoint(seen.points, seen.normals, kTurn, kUp, 0.0);
+    ASSERT_TRUE(axis.has_value()) << (handle ? "with" : "without") << " the handle";
+    EXPECT_NEAR(axis->z(), 0.0, 1e-9) << "the point returned lies on the table";
+    EXPECT_LT((axis->head<2>() - foot.head<2>()).norm(), handle ? 0.002 : 0.001)
+        << (handle ? "with" : "without") << " the handle: " << axis->transpose();
+  }
+}
+
+TEST(StandingAxis, AStandingBoxGivesTheCrossingOfItsSidesAndOneFaceNone) {
+  // A 12 × 7 cm box 10 cm tall standing at (−0.02, 0.05): its two sides the camera sees
+  // cross at its centre line.
+  const Eigen::Vector3d centre(-0.02, 0.05, 0.0), half(0.06, 0.035, 0.05);
+  std::vector<Eigen::Vector3f> points, normals;
+  for (int axis = 0; axis < 2; ++axis) {
+    const int other = 1 - axis;
+    for (const double side : {-1.0, 1.0}) {
+      for (double a = -half[other]; a <= half[other]; a += 0.003) {
+        for (double z = 0.003; z <= 0.1; z += 0.003) {
+          Eigen::Vector3d p = centre, n = Eigen::Vector3d::Zero();
+          p[axis] += side * half[axis];
+          p[other] += a;
+          p.z() = z;
+          n[axis] = side;
+          points.push_back(p.cast<float>());
+          normals.push_back(n.cast<float>());
+        }
+      }
+    }
+  }
+  const SeenSurface seen = SeenFrom(points, normals, kCamera, kTurn);
+  const std::optional<Eigen::Vector3d> axis =
+      StandingAxisPoint(seen.points, seen.normals, kTurn, kUp, 0.0);
+  ASSERT_TRUE(axis.has_value());
+  EXPECT_LT((axis->head<2>() - centre.head<2>()).norm(), 0.002) << axis->transpose();
+
+  // One face alone: its lines are parallel, no point is pinned.
+  SeenSurface face;
+  for (size_t i = 0; i < seen.points.size(); ++i) {
+    const Eigen::Vector3d n = kTurn * seen.normals[i].cast<double>();
+    if (n.y() < -0.9) {
+      face.points.push_back(seen.points[i]);
+      face.normals.push_back(seen.normals[i]);
+    }
+  }
+  ASSERT_GT(face.points.size(), 100u);
+  EXPECT_FALSE(StandingAxisPoint(face.points, face.normals, kTurn, kUp, 0.0).has_value());
 }
 
 }  // namespace

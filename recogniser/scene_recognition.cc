@@ -83,6 +83,7 @@ struct Hypothesis {
   bool rested = false;  // turned onto a resting face of its model (it did not rest)
   bool sibling = false;  // another model of the class in another hypothesis's pose, refined
   bool rolled = false;   // turned about its model's axis of near symmetry, refined
+  bool upright = false;  // stood upright on the standing axis of its points
   // A model scaled per axis (its own surface sample, `scale` in the model frame about the
   // model's centre) to the cluster's size; null: the model's surface as it is.
   const PointCloud* surface = nullptr;
@@ -853,6 +854,209 @@ class LazyPoseQuery {
   bool built_ = false;
 };
 
+// `h` stood upright (SceneRecognitionOptions::upright_max_tilt_deg): its model's axis of
+// near symmetry (`axis`) turned onto the table normal (or its opposite, whichever is
+// nearer), moved along the table onto the standing axis through `standing` (a point on the
+// table) and put down on the table.
+std::optional<Hypothesis> UprightHypothesis(const SceneContext& ctx, const Hypothesis& h,
+                                            const NearSymmetryAxis& axis,
+                                            const Eigen::Vector3d& standing) {
+  const Suggestion& s = h.recognition.suggestions[0];
+  const Eigen::Vector3d n = ctx.plane.normal.cast<double>();
+  const Eigen::Vector3d direction = s.cam_from_model.rotation * axis.direction;
+  const double cosine = direction.dot(n);
+  Hypothesis upright = h;
+  upright.flipped = upright.twin = upright.rested = upright.sibling = upright.rolled = false;
+  upright.upright = true;
+  Suggestion& f = upright.recognition.suggestions[0];
+  const Eigen::Vector3d axis_point = s.cam_from_model * axis.point;
+  f.cam_from_model.rotation =
+      Eigen::Quaterniond::FromTwoVectors(direction, cosine > 0 ? n : -n).toRotationMatrix() *
+      s.cam_from_model.rotation;
+  const Eigen::Vector3d shift = standing - axis_point;
+  f.cam_from_model.translation =
+      axis_point - f.cam_from_model.rotation * axis.point + shift - n * n.dot(shift);
+  const float lowest = LowestHeight(SurfaceOf(ctx, upright), f.cam_from_model, ctx.plane);
+  if (!std::isfinite(lowest)) return std::nullopt;
+  f.cam_from_model.translation -= static_cast<double>(lowest) * n;
+  upright.snap = -lowest;
+  upright.lift = 0.0;
+  return upright;
+}
+
+std::pair<double, double> RobustRange(std::vector<double> values);
+void ScaleSurface(const PointCloud& surface, const Eigen::Vector3d& scale,
+                  const Eigen::Vector3d& centre, PointCloud* scaled);
+
+// The upright looks' scaled models (SceneRecognitionOptions::upright_max_tilt_deg): the
+// models of the class of `upright` (its source stood on the standing axis through `foot`,
+// a point on the table) whose axis of near symmetry is the model axis `k` (the class
+// shares one frame), in the pose of `upright`, each scaled along that axis to the points'
+// height above the table and across it to their radii about the standing axis (the median
+// ratio over kProfileBins height bins of the 90th percentile radii, where both have
+// points), its axis on the standing axis and put down on the table — no ICP: the axis and
+// the table fix the pose of a standing body of revolution. The sibling_hypotheses + 1
+// whose scaled radius profiles fit the points' best are added. True when that added
+// hypotheses.
+constexpr int kProfileBins = 8;
+
+bool AddUprightScaled(const SceneContext& ctx, const Hypothesis& upright, int k,
+                      const std::vector<int>& class_models, const PointCloud& points,
+                      const Eigen::Vector3d& foot, HypothesisPool* pool) {
+  const SceneRecognitionOptions& options = ctx.options;
+  if (!(options.max_scale > 1.0) || class_models.size() < 2 || points.size() < 50) return false;
+  const Eigen::Vector3d n = ctx.plane.normal.cast<double>();
+  const Rigid3d& pose = upright.recognition.suggestions[0].cam_from_model;
+  // The model's +k axis up (1) or down (−1).
+  const double up = pose.rotation.col(k).dot(n) > 0 ? 1.0 : -1.0;
+  // The points' heights above the table and radii about the standing axis; height bins.
+  std::vector<double> heights(points.size()), radii(points.size());
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3d d = points.points[i].cast<double>() - foot;
+    heights[i] = n.dot(d);
+    radii[i] = (d - n * heights[i]).norm();
+  }
+  const auto [low, top] = RobustRange(heights);
+  if (!(top > 0.01) || !(top > low)) return false;
+  const double bin_height = (top - low) / kProfileBins;
+  auto profile = [&](const std::vector<double>& h, const std::vector<double>& r) {
+    std::array<std::vector<double>, kProfileBins> bins;
+    for (size_t i = 0; i < h.size(); ++i) {
+      const int b = static_cast<int>(std::floor((h[i] - low) / bin_height));
+      if (b >= 0 && b < kProfileBins) bins[b].push_back(r[i]);
+    }
+    std::array<double, kProfileBins> out;
+    for (int b = 0; b < kProfileBins; ++b) {
+      out[b] = std::numeric_limits<double>::quiet_NaN();
+      if (bins[b].size() < 5) continue;
+      const size_t q = bins[b].size() * 9 / 10;
+      std::nth_element(bins[b].begin(), bins[b].begin() + q, bins[b].end());
+      out[b] = bins[b][q];
+    }
+    return out;
+  };
+  const std::array<double, kProfileBins> seen = profile(heights, radii);
+  struct Candidate {
+    double misfit;
+    int model;
+    Eigen::Vector3d scale;
+  };
+  std::vector<Candidate> candidates;
+  for (const int m : class_models) {
+    const NearSymmetryAxis& axis = ctx.scene_recogniser.SymmetryAxis(m, options.model_leaf);
+    if (!axis.found || std::abs(axis.direction[k]) < 0.996) continue;
+    const PointCloud& surface = ctx.scene_recogniser.ModelSurface(m, options.model_leaf);
+    if (surface.size() < 50) continue;
+    std::vector<double> h(surface.size()), r(surface.size());
+    for (size_t i = 0; i < surface.size(); ++i) {
+      Eigen::Vector3d d = surface.points[i].cast<double>() - axis.point;
+      h[i] = up * d[k];
+      d[k] = 0.0;
+      r[i] = d.norm();
+    }
+    const auto [model_low, model_high] = RobustRange(h);
+    if (!(model_high - model_low > 1e-3)) continue;
+    const double vertical =
+        std::clamp(top / (model_high - model_low), 1.0 / options.max_scale, options.max_scale);
+    // The model's heights above the table once scaled and put down.
+    for (double& x : h) x = vertical * (x - model_low);
+    const std::array<double, kProfileBins> model = profile(h, r);
+    std::vector<double> ratios;
+    for (int b = 0; b < kProfileBins; ++b) {
+      if (std::isfinite(seen[b]) && std::isfinite(model[b]) && model[b] > 1e-3) {
+        ratios.push_back(seen[b] / model[b]);
+      }
+    }
+    if (ratios.size() < 2) continue;
+    std::nth_element(ratios.begin(), ratios.begin() + ratios.size() / 2, ratios.end());
+    const double across =
+        std::clamp(ratios[ratios.size() / 2], 1.0 / options.max_scale, options.max_scale);
+    double misfit = 0.0, total = 0.0;
+    for (int b = 0; b < kProfileBins; ++b) {
+      if (std::isfinite(seen[b]) && std::isfinite(model[b])) {
+        misfit += std::abs(seen[b] - across * model[b]);
+        total += seen[b];
+      }
+    }
+    Eigen::Vector3d scale = Eigen::Vector3d::Constant(across);
+    scale[k] = vertical;
+    candidates.push_back({misfit / std::max(total, 1e-6), m, scale});
+  }
+  std::sort(candidates.begin(), candidates.end(),
+            [](const Candidate& a, const Candidate& b) { return a.misfit < b.misfit; });
+  if (static_cast<int>(candidates.size()) > options.sibling_hypotheses + 1) {
+    candidates.resize(options.sibling_hypotheses + 1);
+  }
+  bool added = false;
+  for (const Candidate& c : candidates) {
+    const ModelRecord& record = ctx.database.model(c.model);
+    const NearSymmetryAxis& axis = ctx.scene_recogniser.SymmetryAxis(c.model, options.model_leaf);
+    PointCloud scaled;
+    ScaleSurface(ctx.scene_recogniser.ModelSurface(c.model, options.model_leaf), c.scale,
+                 record.center, &scaled);
+    Hypothesis out = upright;
+    out.sibling = c.model != upright.recognition.suggestions[0].model;
+    Suggestion& f = out.recognition.suggestions[0];
+    f.model = c.model;
+    f.model_name = record.name;
+    // The scaled model's axis onto the standing axis, then down onto the table.
+    const Eigen::Vector3d shift =
+        foot - pose * (record.center + c.scale.cwiseProduct(axis.point - record.center));
+    f.cam_from_model.translation = pose.translation + shift - n * n.dot(shift);
+    const float lowest = LowestHeight(scaled, f.cam_from_model, ctx.plane);
+    if (!std::isfinite(lowest)) continue;
+    f.cam_from_model.translation -= static_cast<double>(lowest) * n;
+    pool->scaled_surfaces.push_back(std::move(scaled));
+    out.surface = &pool->scaled_surfaces.back();
+    out.scale = c.scale;
+    spdlog::debug("cluster {}: {} stood upright scaled by ({:.2f}, {:.2f}, {:.2f}), profile "
+                  "misfit {:.3f}", upright.cluster, record.name, c.scale.x(), c.scale.y(),
+                  c.scale.z(), c.misfit);
+    pool->hypotheses.push_back(std::move(out));
+    added = true;
+  }
+  return added;
+}
+
+// The upright looks of `source` (SceneRecognitionOptions::upright_max_tilt_deg) on
+// `points`, when its class has several database models (an instance's own views fit it)
+// and its model's axis of near symmetry is a model axis posed within
+// upright_max_tilt_deg of the table normal: the model stood upright on the standing axis
+// of the points (StandingAxisPoint on their pose query, `query_of`) and the scaled models
+// of AddUprightScaled. True when that added hypotheses.
+bool AddUprightLooks(const SceneContext& ctx, const Hypothesis& source,
+                     const std::vector<int>& class_models, const PointCloud& points,
+                     const std::function<const PoseQuery*()>& query_of, HypothesisPool* pool) {
+  const SceneRecognitionOptions& options = ctx.options;
+  if (class_models.size() < 2) return false;  // an instance: its own views fit it
+  const Suggestion& s = source.recognition.suggestions[0];
+  const NearSymmetryAxis& axis = ctx.scene_recogniser.SymmetryAxis(s.model, options.model_leaf);
+  int k = 0;
+  if (!axis.found || axis.direction.cwiseAbs().maxCoeff(&k) < 0.996) return false;
+  const Eigen::Vector3d n = ctx.plane.normal.cast<double>();
+  if (std::abs(s.cam_from_model.rotation.col(k).dot(n)) <
+      std::cos(options.upright_max_tilt_deg * M_PI / 180.0)) {
+    return false;
+  }
+  const PoseQuery* query = query_of();
+  if (query == nullptr) return false;
+  const std::optional<Eigen::Vector3d> foot = StandingAxisPoint(
+      query->points, query->normals, query->cam_from_canonical, n, ctx.plane.offset);
+  if (!foot) return false;
+  std::optional<Hypothesis> upright = UprightHypothesis(ctx, source, axis, *foot);
+  if (!upright) return false;
+  AddUprightScaled(ctx, *upright, k, class_models, points, *foot, pool);
+  const Rigid3d canonical_from_cam =
+      Rigid3d(query->cam_from_canonical, Eigen::Vector3d::Zero()).Inverse();
+  ScoreOnCluster(ctx, *query, canonical_from_cam * upright->recognition.suggestions[0].cam_from_model,
+                 &*upright);
+  spdlog::debug("cluster {}: {} stood upright, score {:.3f}", source.cluster,
+                upright->recognition.suggestions[0].model_name,
+                upright->recognition.suggestions[0].score);
+  pool->hypotheses.push_back(std::move(*upright));
+  return true;
+}
+
 // The size looks (siblings and the scaled model) of the class `recognition` ranks first,
 // on `points` (a cluster, a part of one, or two joined) attributed to `cluster`, refined on
 // their pose query (`query_of`, called when first needed). True when that added
@@ -867,6 +1071,9 @@ bool AddSizeLooksOn(const SceneContext& ctx, const RecognitionResult& recognitio
   if (!source) return false;
   bool added = AddSiblingsOf(ctx, *source, class_models, points, query_of, pool);
   added |= AddScaledHypothesis(ctx, *source, class_models.size(), points, query_of, pool);
+  if (ctx.options.upright_max_tilt_deg > 0 && ctx.options.snap_to_plane && ctx.plane.found) {
+    added |= AddUprightLooks(ctx, *source, class_models, points, query_of, pool);
+  }
   return added;
 }
 
@@ -1386,7 +1593,7 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
     const HypothesisEvidence& e = evidence[h];
     const Eigen::Vector3f& c = ctx.clusters[hypotheses[h].cluster].centroid;
     spdlog::debug("hypothesis cluster={} centroid=({:.4f},{:.4f},{:.4f}) class={} model={} "
-                  "score={:.3f} class_p={:.3f} flipped={} twin={} rested={} sibling={} rolled={} "
+                  "score={:.3f} class_p={:.3f} flipped={} twin={} rested={} sibling={} rolled={} upright={} "
                   "lift={:.3f} fit={:.3f} "
                   "local={:.3f} "
                   "viol={:.3f} visible={} explained={} duplicates={} violations={} passes={} "
@@ -1394,7 +1601,7 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
                   hypotheses[h].cluster, c.x(), c.y(), c.z(), s.class_name, s.model_name,
                   s.score, ClassProbability(hypotheses[h].recognition, s.class_index),
                   hypotheses[h].flipped, hypotheses[h].twin, hypotheses[h].rested,
-                  hypotheses[h].sibling, hypotheses[h].rolled, hypotheses[h].lift, e.model_fit,
+                  hypotheses[h].sibling, hypotheses[h].rolled, hypotheses[h].upright, hypotheses[h].lift, e.model_fit,
                   e.local_explained,
                   e.violation_fraction,
                   e.visible, e.explained.size(), e.duplicates, e.violations, e.passes,
@@ -1544,6 +1751,9 @@ void SceneRecognitionOptions::Check() const {
   SOPE_CHECK(max_rest_turn_deg >= 0 && max_rest_turn_deg <= 180,
              "scene recognition: max rest turn must be in [0, 180] degrees, got {}",
              max_rest_turn_deg);
+  SOPE_CHECK(upright_max_tilt_deg >= 0 && upright_max_tilt_deg < 45,
+             "scene recognition: upright max tilt must be in [0, 45) degrees, got {}",
+             upright_max_tilt_deg);
   SOPE_CHECK(keep_unsnapped_from >= 0 && float_weight >= 0,
              "scene recognition: keep unsnapped from and float weight must be ≥ 0, got {} and {}",
              keep_unsnapped_from, float_weight);
