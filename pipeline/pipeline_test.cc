@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <optional>
 #include <cstring>
 #include <sstream>
 
@@ -330,6 +331,26 @@ SourceScan EvaluationTableScene(uint64_t seed, int index) {
   return source.Next(index);
 }
 
+// Scene `index` of the procedural tabletop evaluation with `seed`, scanned: its cloud and the
+// model centre (camera frame) of its object of `class_name` and `instance_seed`; nullopt
+// when the scene holds no such object (it is not the scene a test describes).
+struct ScannedTruthObject {
+  PointCloud cloud;
+  Eigen::Vector3d centre;
+};
+std::optional<ScannedTruthObject> ScanEvaluationObject(uint64_t seed, int index,
+                                                       const std::string& class_name,
+                                                       uint64_t instance_seed) {
+  const SourceScan scan = EvaluationTableScene(seed, index);
+  if (!scan.truth.has_value()) return std::nullopt;
+  for (const ScanObjectTruth& o : scan.truth->objects) {
+    if (o.class_name != class_name || o.instance_seed != instance_seed) continue;
+    return ScannedTruthObject{ScanFrameSet(scan.frames, scan.calibration).triangulation.cloud,
+                              o.cam_from_model * MakePoseTruthModel(o.mesh).center};
+  }
+  return std::nullopt;
+}
+
 // Whether `result` names an object `class_name` whose model centre lies within 3 cm of
 // `centre` (camera frame).
 bool NamedNear(const SceneRecognitionResult& result, const Database& db,
@@ -413,16 +434,11 @@ TEST(TableJoins, AStandingWineGlassWhoseBowlFloatsIsFoundBySizeLooks) {
                 {ObjectClass::kBowl, {1, 4, 5, 10}},
                 {ObjectClass::kPlate, {10, 15}},
                 {ObjectClass::kVase, {8}}});
-  const SourceScan scan = EvaluationTableScene(501, 10);
-  ASSERT_TRUE(scan.truth.has_value());
-  const ScanObjectTruth* glass = nullptr;
-  for (const ScanObjectTruth& o : scan.truth->objects) {
-    if (o.class_name == "wine_glass") glass = &o;
-  }
-  ASSERT_NE(glass, nullptr) << "scene 10 of seed 501 is not the one described";
-  ASSERT_EQ(glass->instance_seed, 1713u) << "scene 10 of seed 501 is not the one described";
-  const PointCloud cloud = ScanFrameSet(scan.frames, scan.calibration).triangulation.cloud;
-  const Eigen::Vector3d centre = glass->cam_from_model * MakePoseTruthModel(glass->mesh).center;
+  const std::optional<ScannedTruthObject> glass =
+      ScanEvaluationObject(501, 10, "wine_glass", 1713);
+  ASSERT_TRUE(glass.has_value()) << "scene 10 of seed 501 is not the one described";
+  const PointCloud& cloud = glass->cloud;
+  const Eigen::Vector3d& centre = glass->centre;
 
   const SceneRecogniser recogniser(*db);
   SceneRecognitionOptions options;
@@ -459,16 +475,11 @@ TEST(TableRevolution, AStandingWineGlassTheSearchTiltsIsFoundStoodUpright) {
                 {ObjectClass::kPlate, {1, 9, 10, 12}},
                 {ObjectClass::kCan, {3, 5, 7, 12}},
                 {ObjectClass::kBottle, {3, 10}}});
-  const SourceScan scan = EvaluationTableScene(601, 2);
-  ASSERT_TRUE(scan.truth.has_value());
-  const ScanObjectTruth* glass = nullptr;
-  for (const ScanObjectTruth& o : scan.truth->objects) {
-    if (o.class_name == "wine_glass") glass = &o;
-  }
-  ASSERT_NE(glass, nullptr) << "scene 2 of seed 601 is not the one described";
-  ASSERT_EQ(glass->instance_seed, 1003u) << "scene 2 of seed 601 is not the one described";
-  const PointCloud cloud = ScanFrameSet(scan.frames, scan.calibration).triangulation.cloud;
-  const Eigen::Vector3d centre = glass->cam_from_model * MakePoseTruthModel(glass->mesh).center;
+  const std::optional<ScannedTruthObject> glass =
+      ScanEvaluationObject(601, 2, "wine_glass", 1003);
+  ASSERT_TRUE(glass.has_value()) << "scene 2 of seed 601 is not the one described";
+  const PointCloud& cloud = glass->cloud;
+  const Eigen::Vector3d& centre = glass->centre;
 
   const SceneRecogniser recogniser(*db);
   SceneRecognitionOptions options;
