@@ -383,27 +383,32 @@ NeighbourTable NeighbourGrid::AllKNearest(int k) const {
                         original_index_.begin() + c->end);
     }
   };
+  // A block's candidates are kept only inside the radius it is guaranteed to cover: a
+  // nearer one beyond it could hide outside the block, so the others-th nearest must lie
+  // inside anyway, and the selection then runs on about half the block's points.
   std::vector<uint64_t> candidates;
-  auto add = [&](const Candidates& from, float qx, float qy, float qz, int32_t self) {
+  auto add = [&](const Candidates& from, float qx, float qy, float qz, int32_t self,
+                 float max_sq) {
+    size_t n = candidates.size();
+    candidates.resize(n + from.index.size());
+    uint64_t* out = candidates.data();
     for (size_t j = 0; j < from.index.size(); ++j) {
       const float dx = from.x[j] - qx, dy = from.y[j] - qy, dz = from.z[j] - qz;
-      if (from.index[j] != self) {
-        candidates.push_back(PackCandidate(dx * dx + dy * dy + dz * dz, from.index[j]));
-      }
+      const float sq = dx * dx + dy * dy + dz * dz;
+      out[n] = PackCandidate(sq, from.index[j]);  // kept by advancing past it (no branch)
+      n += static_cast<size_t>(sq < max_sq) & static_cast<size_t>(from.index[j] != self);
     }
+    candidates.resize(n);
   };
-  // True (and the first `others` candidates sorted) when the others-th nearest candidate is
-  // closer than `bound`, the radius the searched block is guaranteed to cover.
-  auto settle = [&](double bound) {
+  // True (and the first `others` candidates sorted) when `others` candidates lie inside the
+  // covered radius (all candidates do, by `add`).
+  auto settle = [&]() {
     if (static_cast<int>(candidates.size()) < others) return false;
     std::nth_element(candidates.begin(), candidates.begin() + (others - 1), candidates.end());
-    if (!(CandidateDistance(candidates[others - 1]) <
-          static_cast<float>(bound * bound) * kBoundMargin)) {
-      return false;
-    }
     std::sort(candidates.begin(), candidates.begin() + others);
     return true;
   };
+  auto covered_sq = [](double bound) { return static_cast<float>(bound * bound) * kBoundMargin; };
 
   std::vector<const Cell*> cells;
   Candidates near, far;
@@ -432,8 +437,8 @@ NeighbourTable NeighbourGrid::AllKNearest(int k) const {
       for (int a = 0; a < 3; ++a) face = std::min({face, q[a] - lo[a], lo[a] + cell_ - q[a]});
       face = std::max(face, 0.0);
       candidates.clear();
-      add(near, qx, qy, qz, self);
-      bool done = settle(cell_ + face);
+      add(near, qx, qy, qz, self, covered_sq(cell_ + face));
+      bool done = settle();
       if (!done) {
         if (!far_ready) {
           cells.clear();
@@ -441,8 +446,11 @@ NeighbourTable NeighbourGrid::AllKNearest(int k) const {
           gather(cells, &far);
           far_ready = true;
         }
-        add(far, qx, qy, qz, self);
-        done = settle(2.0 * cell_ + face);
+        const float far_sq = covered_sq(2.0 * cell_ + face);
+        candidates.clear();
+        add(near, qx, qy, qz, self, far_sq);
+        add(far, qx, qy, qz, self, far_sq);
+        done = settle();
       }
       if (done) {
         for (int j = 0; j < others; ++j) {
