@@ -412,6 +412,7 @@ NeighbourTable NeighbourGrid::AllKNearest(int k) const {
 
   std::vector<const Cell*> cells;
   Candidates near, far;
+  float previous_kth_sq = std::numeric_limits<float>::infinity();
   std::vector<int32_t> slow_indices;
   std::vector<float> slow_distances;
   for (const Cell& cell : cells_) {
@@ -436,9 +437,18 @@ NeighbourTable NeighbourGrid::AllKNearest(int k) const {
       const float q[3] = {qx, qy, qz};
       for (int a = 0; a < 3; ++a) face = std::min({face, q[a] - lo[a], lo[a] + cell_ - q[a]});
       face = std::max(face, 0.0);
+      // First inside a guess of the others-th distance (the previous point's, 20% wider;
+      // neighbours have similar ones), then inside the whole covered radius.
+      const float near_sq = covered_sq(cell_ + face);
+      const float guess_sq = std::min(near_sq, 1.44f * previous_kth_sq);
       candidates.clear();
-      add(near, qx, qy, qz, self, covered_sq(cell_ + face));
+      add(near, qx, qy, qz, self, guess_sq);
       bool done = settle();
+      if (!done && guess_sq < near_sq) {
+        candidates.clear();
+        add(near, qx, qy, qz, self, near_sq);
+        done = settle();
+      }
       if (!done) {
         if (!far_ready) {
           cells.clear();
@@ -453,6 +463,7 @@ NeighbourTable NeighbourGrid::AllKNearest(int k) const {
         done = settle();
       }
       if (done) {
+        previous_kth_sq = CandidateDistance(candidates[others - 1]);
         for (int j = 0; j < others; ++j) {
           out_index[j + 1] = CandidateIndex(candidates[j]);
           out_distance[j + 1] = CandidateDistance(candidates[j]);
