@@ -103,8 +103,21 @@ std::vector<Eigen::Vector3f> VoxelGridCentroids(const std::vector<Eigen::Vector3
     }
   };
 
+  // Points in scan order fall into the voxel of the point before them most of the time:
+  // the current voxel's sums stay in registers until the key changes (the same additions
+  // in the same order, without a store → load chain per point).
   uint64_t last_key = ~uint64_t{0};
   int32_t last_voxel = -1;
+  double sx = 0.0, sy = 0.0, sz = 0.0;
+  uint32_t count = 0;
+  auto store = [&] {
+    if (last_voxel < 0) return;
+    Voxel& v = voxels[last_voxel];
+    v.sum[0] = sx;
+    v.sum[1] = sy;
+    v.sum[2] = sz;
+    v.count = count;
+  };
   for (const Eigen::Vector3f& p : points) {
     int64_t cell[3];
     for (int a = 0; a < 3; ++a) {
@@ -115,8 +128,9 @@ std::vector<Eigen::Vector3f> VoxelGridCentroids(const std::vector<Eigen::Vector3
       cell[a] = c;
     }
     const uint64_t key = PackKey(cell[0], cell[1], cell[2]);
-    int32_t voxel = last_voxel;
     if (key != last_key) {
+      store();
+      int32_t voxel;
       size_t slot = HashKey(key) & (capacity - 1);
       while (table[slot] >= 0 && table_keys[slot] != key) slot = (slot + 1) & (capacity - 1);
       if (table[slot] < 0) {
@@ -130,13 +144,18 @@ std::vector<Eigen::Vector3f> VoxelGridCentroids(const std::vector<Eigen::Vector3
       }
       last_key = key;
       last_voxel = voxel;
+      const Voxel& v = voxels[voxel];
+      sx = v.sum[0];
+      sy = v.sum[1];
+      sz = v.sum[2];
+      count = v.count;
     }
-    Voxel& v = voxels[voxel];
-    v.sum[0] += p.x();
-    v.sum[1] += p.y();
-    v.sum[2] += p.z();
-    ++v.count;
+    sx += p.x();
+    sy += p.y();
+    sz += p.z();
+    ++count;
   }
+  store();
 
   std::vector<int32_t> order(voxels.size());
   std::iota(order.begin(), order.end(), 0);
