@@ -9,6 +9,10 @@
 // is the plain per-pixel decode (what this benchmark measured before 2026-12-04). Goal:
 // ≤ 60 ms.
 //
+// Tabletop scans fill pixels by code consistency only near what is not the table
+// (ScanTableFrameSet); BM_Table_AllObjects_WholeImageConsistency is the same path with the
+// consistency over the whole image (ScanFrameSet).
+//
 // Peers in the same run on the same frame sets: the same path with PCL's kd-tree
 // Euclidean clustering (the former segmentation; cpu_ratio_vs_pcl_clustering), the
 // segmentation stage alone both ways (BM_Segment_*), and the single-object path (range band +
@@ -116,7 +120,7 @@ double ThreadCpuMs() {
 // hypotheses: `roll_steps`, < 0 the default).
 void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clustering,
               std::vector<double>* totals_out, bool second_looks = true, int roll_steps = -1,
-              const DecoderOptions& decoder = ScanOptions().decoder) {
+              const DecoderOptions& decoder = ScanOptions().decoder, bool table_scan = true) {
   const Input& input = GetInput();
   const ScopedCvThreads one_core(1);  // OpenCV's pool on this thread only
   const SceneRecogniser recogniser(*input.db);
@@ -137,10 +141,13 @@ void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clus
     const SourceScan& in = input.scans[k++ % input.scans.size()];
     const auto start = std::chrono::steady_clock::now();
     const double cpu_start = ThreadCpuMs();
-    const ScanResult result = ScanFrameSet(in.frames, *input.triangulator, decoder);
     SceneRecognitionOptions options;
     options.segmentation.max_range = in.band ? in.band->max_range : 2.0;
     options.segmentation.clustering = clustering;
+    const ScanResult result =
+        table_scan
+            ? ScanTableFrameSet(in.frames, *input.triangulator, decoder, options.segmentation)
+            : ScanFrameSet(in.frames, *input.triangulator, decoder);
     if (!second_looks) options.second_look_rounds = 0;
     if (roll_steps >= 0) options.roll_steps = roll_steps;
     const SceneRecognitionResult scene = recogniser.Recognise(result.triangulation.cloud, options);
@@ -176,6 +183,14 @@ void BM_Table_AllObjects_PlainDecode(benchmark::State& state) {
   state.SetLabel("peer: the same with the plain per-pixel decode (no sub-pixel edges, no code "
                  "consistency)");
 }
+std::vector<double> whole_image_cpu;
+
+void BM_Table_AllObjects_WholeImageConsistency(benchmark::State& state) {
+  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &whole_image_cpu, true, -1,
+           ScanOptions().decoder, false);
+  state.SetLabel("peer: the same with code consistency over the whole image (ScanFrameSet, "
+                 "before 2026-12-05)");
+}
 std::vector<double> first_look_cpu;
 std::vector<double> no_rolls_cpu;
 
@@ -208,6 +223,10 @@ void BM_Table_AllObjects(benchmark::State& state) {
   if (!plain_decode_cpu.empty()) {
     state.counters["cpu_ratio_vs_plain_decode"] =
         Quantile(table_totals, 0.5) / Quantile(plain_decode_cpu, 0.5);
+  }
+  if (!whole_image_cpu.empty()) {
+    state.counters["cpu_ratio_vs_whole_image_consistency"] =
+        Quantile(table_totals, 0.5) / Quantile(whole_image_cpu, 0.5);
   }
   if (!first_look_cpu.empty()) {
     state.counters["cpu_ratio_vs_first_look_only"] =
@@ -301,6 +320,7 @@ BENCHMARK(BM_Segment_Grid)->Iterations(5 * kScenes);
 BENCHMARK(BM_Table_AllObjects_PclClustering)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects_NoRolls)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects_PlainDecode)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Table_AllObjects_WholeImageConsistency)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects_FirstLookOnly)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_DecodeTableScene)

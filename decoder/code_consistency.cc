@@ -426,13 +426,18 @@ Choice ChooseBlock(const AxisFrames& axis, const std::vector<float>& margins, fl
 }  // namespace internal
 
 void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& options,
-                                  CorrespondenceMap* map) {
+                                  CorrespondenceMap* map, const cv::Mat& region) {
   using namespace internal;
   SOPE_CHECK(map != nullptr, "FillFromConsistentNeighbours: no map");
   const FrameSetManifest& manifest = frames.manifest;
   SOPE_CHECK(map->width() == manifest.camera_width && map->height() == manifest.camera_height,
              "FillFromConsistentNeighbours: the map is {}x{} but the frames are {}x{}",
              map->width(), map->height(), manifest.camera_width, manifest.camera_height);
+  SOPE_CHECK(region.empty() || (region.type() == CV_8UC1 && region.cols == map->width() &&
+                                region.rows == map->height()),
+             "FillFromConsistentNeighbours: the region must be empty or 8-bit {}x{}, got {}x{} "
+             "of type {}",
+             map->width(), map->height(), region.cols, region.rows, region.type());
   std::vector<AxisFrames> axes;
   for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
     const bool coded = axis == PatternAxis::kX ? map->HasX() : map->HasY();
@@ -665,6 +670,10 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
                               decoded_sums.ptr<int>(std::min(rows - 1, y + radius) + 1),
                               mask_before.ptr<uint8_t>(y), contrast_image.ptr<float>(y), cols,
                               radius, min_neighbours, min_contrast, left.data(), flags.data());
+          if (!region.empty()) {
+            const uint8_t* inside = region.ptr<uint8_t>(y);
+            for (int x = 0; x < cols; ++x) flags[x] &= static_cast<uint8_t>(inside[x] != 0);
+          }
           ForEachMarked(flags.data(), cols,
                         [&](int x) { candidates_per_row[y].emplace_back(x, y); });
         }
@@ -726,9 +735,13 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       uint8_t* listed_row = listed.ptr<uint8_t>(yy);
       const uint8_t* mask_row = map->mask.ptr<uint8_t>(yy);
       const float* contrast_row = contrast_image.ptr<float>(yy);
+      const uint8_t* inside = region.empty() ? nullptr : region.ptr<uint8_t>(yy);
       ForEachMarked(listed_row, cols, [&](int x) {
         listed_row[x] = 0;
-        if (mask_row[x] == 0 && contrast_row[x] >= min_contrast) candidates.emplace_back(x, yy);
+        if (mask_row[x] == 0 && contrast_row[x] >= min_contrast &&
+            (inside == nullptr || inside[x] != 0)) {
+          candidates.emplace_back(x, yy);
+        }
       });
     }
   }

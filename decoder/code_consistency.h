@@ -28,7 +28,10 @@ namespace sope {
 // Filled pixels get the block centre (then RefineGraySubpixel, when on) and confidence
 // (best − runner-up score) / (4·contrast), at most ½. Repeated options.passes times, each
 // pass growing from the pixels filled before. Axes with phase frames are left alone.
+// `region` (CV_8UC1 of the camera size, or empty: everywhere) limits the filled pixels to
+// its non-zero ones (decoded neighbours outside it still count): a tabletop scan fills
+// only near what stands on the table (recogniser/tools/scan_recognition.h).
 void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& options,
-                                  CorrespondenceMap* map);
+                                  CorrespondenceMap* map, const cv::Mat& region = cv::Mat());
 
 }  // namespace sope

@@ -149,7 +149,10 @@ ScanAndRecogniseController::ScanAndRecogniseController(const ScanAndRecogniseOpt
   options_.Check();
   SOPE_CHECK(source_ != nullptr, "scan and recognise: no scan source");
   live_decode_ = std::make_unique<LiveDecode>();
-  live_decode_->options = options_.scan.decoder;
+  // Tabletop scans finish the decode themselves: code consistency only near what is not
+  // the table (ScanTableFrameSet).
+  live_decode_->options = options_.tabletop ? PlainTableDecoderOptions(options_.scan.decoder)
+                                            : options_.scan.decoder;
   LiveDecode* live = live_decode_.get();
   source_->SetFrameSink([live](const FrameSetManifest& manifest, size_t index,
                                const cv::Mat& image) { live->OnFrame(manifest, index, image); });
@@ -223,9 +226,16 @@ void ScanAndRecogniseController::ScanTable(const FrameSet& frames, Correspondenc
                                            double decode_ms, ScanReport* report) {
   const Stopwatch watch;
   ScanRecognition& out = report->result;
-  out.scan = decoded != nullptr
+  SceneRecognitionOptions scene_options = options_.scene;
+  scene_options.recognition = options_.recognition;
+  scene_options.segmentation.min_range = report->band.min_range;
+  scene_options.segmentation.max_range = report->band.max_range;
+  // The live decoder ran without consistency and edges in tabletop mode (constructor); a
+  // table scene from a source in single-object mode was decoded in full.
+  out.scan = decoded != nullptr && !options_.tabletop
                  ? ScanDecoded(frames, std::move(*decoded), decode_ms, *triangulator_)
-                 : ScanFrameSet(frames, *triangulator_, options_.scan.decoder);
+                 : ScanTableFrameSet(frames, *triangulator_, options_.scan.decoder,
+                                     scene_options.segmentation, decoded, decode_ms);
   out.timing.decode = out.scan.decode_ms;
   out.timing.triangulate = out.scan.triangulate_ms;
   const PointCloud& cloud = out.scan.triangulation.cloud;
@@ -237,10 +247,6 @@ void ScanAndRecogniseController::ScanTable(const FrameSet& frames, Correspondenc
     out.timing.total = watch.WallMs();
     return;
   }
-  SceneRecognitionOptions scene_options = options_.scene;
-  scene_options.recognition = options_.recognition;
-  scene_options.segmentation.min_range = report->band.min_range;
-  scene_options.segmentation.max_range = report->band.max_range;
   SceneRecognitionResult scene = scene_recogniser_.Recognise(cloud, scene_options);
   out.timing.segment = scene.timing.segment;
   out.timing.recognise = scene.timing.recognise + scene.timing.verify;

@@ -361,7 +361,33 @@ std::vector<ObjectCluster> ClusterAbovePoints(const PointCloud& cloud,
   return kept;
 }
 
+// Band points the table plane must hold.
+size_t PlaneNeeds(const std::vector<int>& band, const TableSegmentationOptions& options) {
+  return static_cast<size_t>(std::ceil(options.min_plane_fraction * band.size()));
+}
+
+// The table plane of the band's points (RANSAC, least squares, the supporting plane
+// below), facing the camera.
+TablePlane PlaneOfBand(const PointCloud& cloud, const std::vector<int>& band,
+                       const TableSegmentationOptions& options) {
+  const size_t needed = PlaneNeeds(band, options);
+  TablePlane plane = FitTablePlane(cloud, band, options, needed);
+  if (plane.found) plane = DescendToSupportingPlane(cloud, band, options, needed, plane);
+  if (plane.found && plane.offset < 0) {  // cannot happen after FitPlane, kept as an invariant
+    plane.normal = -plane.normal;
+    plane.offset = -plane.offset;
+  }
+  return plane;
+}
+
 }  // namespace
+
+TablePlane FindTablePlane(const PointCloud& cloud, const TableSegmentationOptions& options) {
+  options.Check();
+  const std::vector<int> band = RangeBand(cloud, options);
+  if (band.size() < 3) return TablePlane();
+  return PlaneOfBand(cloud, band, options);
+}
 
 TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationOptions& options) {
   options.Check();
@@ -388,19 +414,14 @@ TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationO
   }
 
   // 1. RANSAC on an even subsample, then least squares on every inlier.
-  const size_t needed = static_cast<size_t>(std::ceil(options.min_plane_fraction * band.size()));
-  TablePlane plane = FitTablePlane(cloud, band, options, needed);
-  if (plane.found) plane = DescendToSupportingPlane(cloud, band, options, needed, plane);
+  const size_t needed = PlaneNeeds(band, options);
+  TablePlane plane = PlaneOfBand(cloud, band, options);
   out.plane = plane;
   if (!plane.found) {
     out.message = fmt::format("no plane: {} of {} points on the best plane (at least {} needed)",
                               plane.inliers, band.size(), needed);
     out.ms = watch.WallMs();
     return out;
-  }
-  if (plane.offset < 0) {  // cannot happen after FitPlane, kept as an invariant
-    plane.normal = -plane.normal;
-    plane.offset = -plane.offset;
   }
 
   // 2. Points in the height band, voxel-thinned (each raw point keeps its voxel).

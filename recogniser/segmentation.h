@@ -95,4 +95,9 @@ struct TableSegmentation {
 // without a plane or with nothing on the table gives no clusters and says why.
 TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationOptions& options = {});
 
+// The table plane alone (SegmentTable's first step, on the same points): `found` false
+// when there is none. For a cloud of finite points (a triangulated scan); throws
+// sope::Error on invalid options.
+TablePlane FindTablePlane(const PointCloud& cloud, const TableSegmentationOptions& options = {});
+
 }  // namespace sope

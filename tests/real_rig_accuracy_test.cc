@@ -17,11 +17,14 @@
 #include <vector>
 
 #include "calibration/scan.h"
+#include "core/error.h"
 #include "core/mesh.h"
+#include "decoder/code_consistency.h"
 #include "simulator/primitives.h"
 #include "simulator/scene_builder.h"
 #include "simulator/simulate_scan.h"
 #include "simulator/virtual_rig.h"
+#include "tests/test_support.h"
 
 namespace sope {
 namespace {
@@ -202,6 +205,64 @@ TEST(GrazingCoverage, SphereAndCylinderLitFromTheSide) {
     EXPECT_GE(coverage.decoded, per_pixel.decoded + 0.03);
     EXPECT_LE(coverage.wrong, 0.005);
   }
+}
+
+// FillFromConsistentNeighbours' region (tabletop scans fill only near what stands on the
+// table): on the grazing sphere, a region of every pixel gives the whole image's fills
+// exactly; the left half of the image fills there as the whole-image pass does away from
+// the region's edge (within the consistency's reach of it: 8 passes × radius 3) and
+// nowhere else.
+TEST(GrazingCoverage, ConsistencyFillsOnlyInsideItsRegion) {
+  const SimulatedScan scan =
+      GrazingScene(MakeSphere(0.09, 64, 128), Eigen::Vector3d(-0.12, 0.0, 0.62), 0.4);
+  DecoderOptions options;  // no sub-pixel edges: the fills' coordinates compare exactly
+  options.consistency.enabled = true;
+  DecoderOptions plain_options = options;
+  plain_options.consistency.enabled = false;
+  const CorrespondenceMap plain = Decode(scan.frames, plain_options);
+  const CorrespondenceMap whole = Decode(scan.frames, options);
+  const int rows = plain.height(), cols = plain.width();
+
+  CorrespondenceMap everywhere = Decode(scan.frames, plain_options);
+  FillFromConsistentNeighbours(scan.frames, options, &everywhere,
+                               cv::Mat(rows, cols, CV_8UC1, cv::Scalar(255)));
+  EXPECT_EQ(cv::countNonZero(everywhere.mask != whole.mask), 0);
+  EXPECT_EQ(cv::countNonZero((everywhere.proj_x != whole.proj_x) & whole.mask), 0);
+  EXPECT_EQ(cv::countNonZero((everywhere.proj_y != whole.proj_y) & whole.mask), 0);
+
+  // The sphere's centre is left of the image centre: half of it is in the left half.
+  const int half = cols / 2;
+  cv::Mat left = cv::Mat::zeros(rows, cols, CV_8UC1);
+  left.colRange(0, half).setTo(255);
+  CorrespondenceMap inside = Decode(scan.frames, plain_options);
+  FillFromConsistentNeighbours(scan.frames, options, &inside, left);
+  const int reach = 8 * 3;
+  int filled_outside = 0, filled_inside = 0, whole_inside = 0, differ_away_from_edge = 0;
+  for (int y = 0; y < rows; ++y) {
+    for (int x = 0; x < cols; ++x) {
+      const bool was = plain.mask.at<uint8_t>(y, x) != 0;
+      const bool now = inside.mask.at<uint8_t>(y, x) != 0;
+      const bool filled_whole = !was && whole.mask.at<uint8_t>(y, x) != 0;
+      if (x >= half) {
+        filled_outside += now != was;
+        continue;
+      }
+      filled_inside += now && !was;
+      whole_inside += filled_whole;
+      if (x < half - reach) differ_away_from_edge += now != (was || filled_whole);
+    }
+  }
+  std::printf("fills: whole image %d in the left half; with the region %d there, %d outside\n",
+              whole_inside, filled_inside, filled_outside);
+  EXPECT_GT(whole_inside, 1000);
+  EXPECT_EQ(filled_outside, 0);
+  EXPECT_EQ(differ_away_from_edge, 0);
+  EXPECT_GE(filled_inside, 0.9 * whole_inside);
+  // A region of the wrong size is refused.
+  CorrespondenceMap refused = Decode(scan.frames, plain_options);
+  EXPECT_THROW_WITH_MESSAGE(
+      FillFromConsistentNeighbours(scan.frames, options, &refused, cv::Mat::zeros(3, 3, CV_8UC1)),
+      Error, "the region must be empty or 8-bit");
 }
 
 }  // namespace

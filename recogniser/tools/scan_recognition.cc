@@ -11,6 +11,9 @@
 #include "core/split_mix.h"
 #include "core/stopwatch.h"
 #include "core/units.h"
+#include "decoder/code_consistency.h"
+#include "decoder/gray_refine.h"
+#include "recogniser/segmentation.h"
 #include "simulator/scene_builder.h"
 
 namespace sope {
@@ -114,6 +117,66 @@ ScanRecognition RecogniseFrameSet(const FrameSet& frames, const Triangulator& tr
   decoder_options.Check();
   return RecogniseScan(ScanFrameSet(frames, triangulator, decoder_options), segmentation,
                        recogniser, recognition_options);
+}
+
+DecoderOptions PlainTableDecoderOptions(const DecoderOptions& options) {
+  DecoderOptions plain = options;
+  plain.consistency.enabled = false;
+  plain.gray_subpixel = GraySubpixel::kOff;
+  return plain;
+}
+
+ScanResult ScanTableFrameSet(const FrameSet& frames, const Triangulator& triangulator,
+                             const DecoderOptions& options,
+                             const TableSegmentationOptions& segmentation,
+                             CorrespondenceMap* plain, double plain_decode_ms) {
+  options.Check();
+  segmentation.Check();
+  const bool edges = options.gray_subpixel == GraySubpixel::kEdges;
+  Stopwatch watch;
+  if (frames.manifest.HasPhase() || !options.consistency.enabled) {
+    if (plain == nullptr) return ScanFrameSet(frames, triangulator, options);
+    if (edges) RefineGraySubpixel(frames, plain);
+    return ScanDecoded(frames, std::move(*plain), plain_decode_ms + watch.WallMs(), triangulator);
+  }
+  CorrespondenceMap map =
+      plain != nullptr ? std::move(*plain) : Decode(frames, PlainTableDecoderOptions(options));
+  double decode_ms = plain_decode_ms + watch.WallMs();
+  // The plane and what stands on it, from the plain map's points.
+  watch.Restart();
+  const TriangulationResult first = triangulator.Triangulate(map, cv::Mat());
+  const double first_ms = watch.WallMs();
+
+  watch.Restart();
+  cv::Mat region;  // empty: everywhere
+  const TablePlane plane = FindTablePlane(first.cloud, segmentation);
+  if (plane.found) {
+    cv::Mat off_table = cv::Mat::zeros(map.height(), map.width(), CV_8UC1);
+    const std::vector<Eigen::Vector3f>& points = first.cloud.points;
+    const float min_height = static_cast<float>(segmentation.min_height);
+    const float max_height = static_cast<float>(segmentation.max_height);
+    const float min_range2 = static_cast<float>(segmentation.min_range * segmentation.min_range);
+    const float max_range2 = static_cast<float>(segmentation.max_range * segmentation.max_range);
+    for (size_t i = 0; i < points.size(); ++i) {
+      const float height = plane.Height(points[i]);
+      const float range2 = points[i].squaredNorm();
+      if (height > min_height && height <= max_height && range2 >= min_range2 &&
+          range2 <= max_range2) {
+        off_table.at<uint8_t>(first.pixels[i]) = 255;
+      }
+    }
+    // The consistency's reach: each pass fills within its window of the pixels decoded
+    // before it.
+    const int reach = options.consistency.passes * options.consistency.window_radius;
+    cv::dilate(off_table, region,
+               cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * reach + 1, 2 * reach + 1)));
+  }
+  FillFromConsistentNeighbours(frames, options, &map, region);
+  if (edges) RefineGraySubpixel(frames, &map);
+  decode_ms += watch.WallMs();
+  ScanResult result = ScanDecoded(frames, std::move(map), decode_ms, triangulator);
+  result.triangulate_ms += first_ms;
+  return result;
 }
 
 ScanRecognition RecogniseScan(ScanResult scan, const ObjectSegmentationOptions& segmentation,

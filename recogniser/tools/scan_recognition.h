@@ -97,6 +97,31 @@ ScanRecognition RecogniseFrameSet(const FrameSet& frames, const RigCalibration& 
                                   const RecognitionOptions& recognition_options);
 
 // ---------------------------------------------------------------------------------------
+// Tabletop scans.
+
+// Code consistency (decoder/code_consistency.h) is most of a table scene's decode, and
+// most of the pixels it fills lie on the table plane, which the segmentation then drops
+// (a 4-object scene: 68k of 86k). A tabletop scan therefore fills only near what stands on
+// the table: the frames are decoded without code consistency and sub-pixel edges
+// (`plain`, decoded with PlainTableDecoderOptions: given — the live loop decodes it during
+// the capture, `plain_decode_ms` its time after the last frame — or decoded here) and
+// triangulated, the table plane is found in those points (FindTablePlane with
+// `segmentation`'s range band and plane options), and the consistency fills only pixels
+// within its reach (passes × window radius) of a point standing on the table
+// (min_height–max_height above it, in the range band; everywhere when there is no plane):
+// the fills of what stands on the table are those of the whole image but for any reached
+// only across the table. Then the sub-pixel edges, when on, and the triangulation of the
+// whole map. Phase sets and options without consistency: the usual scan (ScanFrameSet /
+// ScanDecoded). decode_ms counts the decoding, the plane and the region; triangulate_ms
+// both triangulations.
+struct TableSegmentationOptions;
+DecoderOptions PlainTableDecoderOptions(const DecoderOptions& options);
+ScanResult ScanTableFrameSet(const FrameSet& frames, const Triangulator& triangulator,
+                             const DecoderOptions& options,
+                             const TableSegmentationOptions& segmentation,
+                             CorrespondenceMap* plain = nullptr, double plain_decode_ms = 0.0);
+
+// ---------------------------------------------------------------------------------------
 // Virtual scenes for recognition.
 
 struct RecognitionSceneOptions {
