@@ -235,11 +235,20 @@ TEST(LiveCli, AnInterruptedCaptureLeavesNoRecording) {
 TEST(LiveCli, ProjectStepsThroughTheSequenceOnAWindow) {
   if (!HaveDisplay()) GTEST_SKIP() << "no X display (install xvfb)";
   testing::ScratchDir scratch;
+  // Under AddressSanitizer: Mesa unloads its GL driver before the process exits, so
+  // LeakSanitizer reports the driver's process-long allocations from "<unknown module>"
+  // (no suppression can match them; projector/CMakeLists.txt, display_test): leak checks
+  // off for the window's runs alone.
+#if defined(__SANITIZE_ADDRESS__)
+  const std::string window = "env ASAN_OPTIONS=detect_leaks=0";
+#else
+  const std::string window;
+#endif
   const SopeRun run =
-      Sope("project --windowed --projector 160x120 --axes x --interval 0.01", scratch);
+      Sope("project --windowed --projector 160x120 --axes x --interval 0.01", scratch, window);
   EXPECT_EQ(run.exit_code, 0) << run.err;
   EXPECT_NE(run.err.find("18/18: code x gray bit 0/8 inverted"), std::string::npos) << run.err;
-  const SopeRun monitors = Sope("project --list-monitors", scratch);
+  const SopeRun monitors = Sope("project --list-monitors", scratch, window);
   EXPECT_EQ(monitors.exit_code, 0) << monitors.err;
   EXPECT_EQ(monitors.out.rfind("0: ", 0), 0u) << monitors.out;
 }
