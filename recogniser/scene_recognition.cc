@@ -333,21 +333,30 @@ bool SnapToTable(const SceneContext& ctx, Hypothesis* h) {
   return true;
 }
 
+// Puts the hypothesis, whose model surface is `surface`, down on the table along its
+// normal (its lowest point onto the plane, `snap` the shift); false, leaving it unchanged,
+// when that point is more than `max_lift` metres off the plane (or none was found).
+bool PutDownOnTable(const SceneContext& ctx, const PointCloud& surface, double max_lift,
+                    Hypothesis* h) {
+  Suggestion& f = h->recognition.suggestions[0];
+  const float lowest = LowestHeight(surface, f.cam_from_model, ctx.plane);
+  if (!std::isfinite(lowest) || std::abs(lowest) > max_lift) return false;
+  f.cam_from_model.translation -= static_cast<double>(lowest) * ctx.plane.normal.cast<double>();
+  h->snap = -lowest;
+  h->lift = 0.0;
+  return true;
+}
+
 // Turns the hypothesis by `turn` about its model's centre and puts it down on the table
-// (its lowest point onto the plane, `snap` the shift); false, leaving it half-changed, when
-// that point was more than `max_lift` metres off the plane (or none was found).
+// (PutDownOnTable); false, leaving it half-changed, when its lowest point was more than
+// `max_lift` metres off the plane (or none was found).
 bool TurnOntoTable(const SceneContext& ctx, const Eigen::Matrix3d& turn, double max_lift,
                    Hypothesis* h) {
   Suggestion& f = h->recognition.suggestions[0];
   const Eigen::Vector3d centre = f.cam_from_model * ctx.database.model(f.model).center;
   f.cam_from_model.rotation = turn * f.cam_from_model.rotation;
   f.cam_from_model.translation = turn * (f.cam_from_model.translation - centre) + centre;
-  const float lowest = LowestHeight(SurfaceOf(ctx, *h), f.cam_from_model, ctx.plane);
-  if (!std::isfinite(lowest) || std::abs(lowest) > max_lift) return false;
-  f.cam_from_model.translation -= static_cast<double>(lowest) * ctx.plane.normal.cast<double>();
-  h->snap = -lowest;
-  h->lift = 0.0;
-  return true;
+  return PutDownOnTable(ctx, SurfaceOf(ctx, *h), max_lift, h);
 }
 
 // The same hypothesis turned upside down (half a turn about a horizontal axis through its
@@ -833,6 +842,9 @@ bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, size_t cl
                          const PointCloud& cluster,
                          const std::function<const PoseQuery*()>& pose_query,
                          HypothesisPool* pool);
+std::pair<double, double> RobustRange(std::vector<double> values);
+void ScaleSurface(const PointCloud& surface, const Eigen::Vector3d& scale,
+                  const Eigen::Vector3d& centre, PointCloud* scaled);
 
 // The pose query of `points` (a part of a cluster, or two joined), built when first asked
 // for (the looks that need it may not be taken); Getter() for the looks' `query_of`.
@@ -876,17 +888,12 @@ std::optional<Hypothesis> UprightHypothesis(const SceneContext& ctx, const Hypot
   const Eigen::Vector3d shift = standing - axis_point;
   f.cam_from_model.translation =
       axis_point - f.cam_from_model.rotation * axis.point + shift - n * n.dot(shift);
-  const float lowest = LowestHeight(SurfaceOf(ctx, upright), f.cam_from_model, ctx.plane);
-  if (!std::isfinite(lowest)) return std::nullopt;
-  f.cam_from_model.translation -= static_cast<double>(lowest) * n;
-  upright.snap = -lowest;
-  upright.lift = 0.0;
+  if (!PutDownOnTable(ctx, SurfaceOf(ctx, upright), std::numeric_limits<double>::infinity(),
+                      &upright)) {
+    return std::nullopt;
+  }
   return upright;
 }
-
-std::pair<double, double> RobustRange(std::vector<double> values);
-void ScaleSurface(const PointCloud& surface, const Eigen::Vector3d& scale,
-                  const Eigen::Vector3d& centre, PointCloud* scaled);
 
 // The upright looks' scaled models (SceneRecognitionOptions::upright_max_tilt_deg): the
 // models of the class of `upright` (its source stood on the standing axis through `foot`,
@@ -1003,9 +1010,7 @@ bool AddUprightScaled(const SceneContext& ctx, const Hypothesis& upright, int k,
     const Eigen::Vector3d shift =
         foot - pose * (record.center + c.scale.cwiseProduct(axis.point - record.center));
     f.cam_from_model.translation = pose.translation + shift - n * n.dot(shift);
-    const float lowest = LowestHeight(scaled, f.cam_from_model, ctx.plane);
-    if (!std::isfinite(lowest)) continue;
-    f.cam_from_model.translation -= static_cast<double>(lowest) * n;
+    if (!PutDownOnTable(ctx, scaled, std::numeric_limits<double>::infinity(), &out)) continue;
     pool->scaled_surfaces.push_back(std::move(scaled));
     out.surface = &pool->scaled_surfaces.back();
     out.scale = c.scale;
