@@ -417,6 +417,62 @@ TEST_F(RecogniserTest, ScreeningThreadsGiveTheSameAnswers) {
   }
 }
 
+// The pose memo: the stages run with one (as EstimatePoses runs them) give bit for bit the
+// candidates they give without, and the widened search and the class screening take
+// short ICPs and refinements from it that the first screening ran.
+TEST_F(RecogniserTest, PoseMemoLooksUpWhatTheFirstScreeningRanWithTheSameResults) {
+  const auto same = [](const std::vector<PoseCandidate>& a, const std::vector<PoseCandidate>& b) {
+    if (a.size() != b.size()) return false;
+    for (size_t i = 0; i < a.size(); ++i) {
+      if (a[i].model != b[i].model || a[i].view != b[i].view || a[i].roll != b[i].roll ||
+          a[i].refined != b[i].refined || a[i].alignment.score != b[i].alignment.score ||
+          a[i].icp.iterations != b[i].icp.iterations ||
+          a[i].canonical_from_model.rotation != b[i].canonical_from_model.rotation ||
+          a[i].canonical_from_model.translation != b[i].canonical_from_model.translation) {
+        return false;
+      }
+    }
+    return true;
+  };
+  size_t screened_hits = 0, refined_hits = 0;
+  for (const Query& q : MakeQueries(3, 57)) {
+    const ViewDescription query = DescribeQuery(*db_, q.query.cloud);
+    RecognitionOptions options;
+    options.widening.below_score = 1.5;  // the widened search always runs, every batch
+    options.widening.continue_below = 1.5;
+    const CoarseResult coarse = CoarseStage(*db_, query, options);
+    StageContext context(*db_, query, coarse);
+    const FineResult fine = FineStage(&context, options);
+    const ScreeningRequest plan = PlanScreening(context, fine, options);
+    const auto run = [&](PoseMemo* memo) {
+      RefinementResult refined = RefinePoses(&context, ScreenPoses(&context, fine, plan, options, memo),
+                                             options.refinement.candidates, options, memo);
+      std::vector<PoseCandidate> posed = std::move(refined.candidates);
+      for (PoseCandidate& c : WidenSearch(&context, fine, refined.best_score,
+                                          plan.views_per_model, options, memo)) {
+        posed.push_back(std::move(c));
+      }
+      for (PoseCandidate& c :
+           ScreenClasses(&context, fine, posed, plan.views_per_model, options, memo)) {
+        posed.push_back(std::move(c));
+      }
+      return posed;
+    };
+    PoseMemo memo;
+    const std::vector<PoseCandidate> without = run(nullptr);
+    const std::vector<PoseCandidate> with = run(&memo);
+    EXPECT_TRUE(same(with, without));
+    EXPECT_TRUE(same(EstimatePoses(&context, fine, options), without));
+    screened_hits += memo.screened_hits();
+    refined_hits += memo.refined_hits();
+  }
+  // The widened search screens the first screening's models again, with their first
+  // views and rolls among its own.
+  EXPECT_GT(screened_hits, 0u);
+  RecordProperty("screened_hits", static_cast<int>(screened_hits));
+  RecordProperty("refined_hits", static_cast<int>(refined_hits));
+}
+
 TEST_F(RecogniserTest, NoKnownObjectBelowTheVerificationThreshold) {
   const Recogniser recogniser(*db_);
   std::mt19937_64 rng(13);

@@ -90,9 +90,11 @@ void RunJobs(int threads, size_t count, const std::function<void(size_t)>& job) 
 
 // Roll hypotheses of one view and a short ICP from each on a prefix of its cloud; the
 // best-scoring hypothesis, or nothing when the view gave no hypothesis.
+// With a memo, hypotheses it holds are looked up and those run are appended to `run`.
 bool ScreenView(StageContext* context, const RankedView& r, int model_index,
                 const PoseOptions& hypothesis_options, const PoseOptions& quick_options,
-                const RecognitionOptions& options, PoseCandidate* out) {
+                const RecognitionOptions& options, const PoseMemo* memo, PoseCandidate* out,
+                std::vector<PoseMemo::Screened>* run) {
   const ViewRecord& view = context->db().view(r.view);
   const PoseQuery& pose_query = context->pose_query(options.pose);
   const PointCloud& cloud = context->ViewCloud(r.view);
@@ -114,12 +116,23 @@ bool ScreenView(StageContext* context, const RankedView& r, int model_index,
   candidate.model = model_index;
   bool first = true;
   for (const PoseHypothesis& hypothesis : hypotheses) {
-    const IcpResult icp =
-        RefinePose(quick_points, quick_normals, pose_query, hypothesis.canonical_from_model,
-                   quick_options, screening.quick_iterations);
-    const AlignmentScore alignment =
-        ScoreAlignment(quick_points, quick_normals, quick_spacing, pose_query,
-                       icp.canonical_from_model, options.pose, screening.quick_coverage_samples);
+    const PoseMemo::Screened* known =
+        memo != nullptr ? memo->FindScreened(r.view, hypothesis.canonical_from_model) : nullptr;
+    IcpResult icp;
+    AlignmentScore alignment;
+    if (known != nullptr) {
+      icp = known->icp;
+      alignment = known->alignment;
+    } else {
+      icp = RefinePose(quick_points, quick_normals, pose_query, hypothesis.canonical_from_model,
+                       quick_options, screening.quick_iterations);
+      alignment =
+          ScoreAlignment(quick_points, quick_normals, quick_spacing, pose_query,
+                         icp.canonical_from_model, options.pose, screening.quick_coverage_samples);
+      if (memo != nullptr) {
+        run->push_back({r.view, hypothesis.canonical_from_model, icp, alignment});
+      }
+    }
     if (first || alignment.score > candidate.alignment.score) {
       candidate.canonical_from_model = icp.canonical_from_model;
       candidate.roll = hypothesis.roll.roll;
@@ -283,6 +296,44 @@ CoarseResult CoarseStage(const Database& db, const ViewDescription& query,
   return result;
 }
 
+namespace {
+
+bool SamePose(const Rigid3d& a, const Rigid3d& b) {
+  return a.rotation == b.rotation && a.translation == b.translation;
+}
+
+}  // namespace
+
+const PoseMemo::Screened* PoseMemo::FindScreened(int view, const Rigid3d& initial) const {
+  const auto it = screened_.find(view);
+  if (it == screened_.end()) return nullptr;
+  for (const Screened& entry : it->second) {
+    if (SamePose(entry.initial, initial)) {
+      ++screened_hits_;
+      return &entry;
+    }
+  }
+  return nullptr;
+}
+
+const PoseMemo::Refined* PoseMemo::FindRefined(int model, const Rigid3d& initial,
+                                               int quick_iterations) const {
+  for (const Refined& entry : refined_) {
+    if (entry.model == model && entry.quick_iterations == quick_iterations &&
+        SamePose(entry.initial, initial)) {
+      ++refined_hits_;
+      return &entry;
+    }
+  }
+  return nullptr;
+}
+
+void PoseMemo::Add(Screened screened) {
+  screened_[screened.view].push_back(std::move(screened));
+}
+
+void PoseMemo::Add(Refined refined) { refined_.push_back(std::move(refined)); }
+
 bool RankedBefore(const RankedView& a, const RankedView& b) {
   return a.combined != b.combined ? a.combined < b.combined : a.view < b.view;
 }
@@ -428,7 +479,7 @@ ScreeningRequest PlanScreening(const StageContext& context, const FineResult& fi
 
 std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& fine,
                                        const ScreeningRequest& request,
-                                       const RecognitionOptions& options) {
+                                       const RecognitionOptions& options, PoseMemo* memo) {
   const Database& db = context->db();
   const double min_separation_cos = std::cos(options.screening.view_separation);
   // The short ICP reaches the final gate two iterations before it ends, so its score is
@@ -454,10 +505,16 @@ std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& 
   }
   std::vector<PoseCandidate> screened(jobs.size());
   std::vector<uint8_t> found(jobs.size(), 0);
+  std::vector<std::vector<PoseMemo::Screened>> run(jobs.size());
   RunJobs(options.threads, jobs.size(), [&](size_t j) {
     found[j] = ScreenView(context, jobs[j].second, jobs[j].first, request.hypotheses,
-                          quick_options, options, &screened[j]);
+                          quick_options, options, memo, &screened[j], &run[j]);
   });
+  if (memo != nullptr) {
+    for (std::vector<PoseMemo::Screened>& job : run) {
+      for (PoseMemo::Screened& entry : job) memo->Add(std::move(entry));
+    }
+  }
   std::vector<PoseCandidate> out;
   for (size_t j = 0; j < jobs.size(); ++j) {
     if (found[j]) out.push_back(std::move(screened[j]));
@@ -469,7 +526,7 @@ std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& 
 }
 
 RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> candidates,
-                             int count, const RecognitionOptions& options) {
+                             int count, const RecognitionOptions& options, PoseMemo* memo) {
   PoseOptions refine_options = options.pose;
   refine_options.gate_iterations = 2;
   RefinementResult result;
@@ -487,9 +544,36 @@ RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> c
     refined_models.push_back(candidate.model);
     chosen.push_back(&candidate);
   }
-  RunJobs(options.threads, chosen.size(), [&](size_t j) {
-    RefineCandidate(context, refine_options, options, chosen[j]);
+  // Those the memo holds are copied; the others refined on options.threads threads.
+  std::vector<PoseCandidate*> to_refine;
+  std::vector<PoseMemo::Refined> keys;  // their starting state, for the memo
+  for (PoseCandidate* candidate : chosen) {
+    const PoseMemo::Refined* known =
+        memo != nullptr ? memo->FindRefined(candidate->model, candidate->canonical_from_model,
+                                            candidate->icp.iterations)
+                        : nullptr;
+    if (known != nullptr) {
+      const PoseCandidate& r = known->result;
+      candidate->view = r.view;
+      candidate->canonical_from_model = r.canonical_from_model;
+      candidate->icp = r.icp;
+      candidate->alignment = r.alignment;
+      candidate->refined = true;
+      continue;
+    }
+    to_refine.push_back(candidate);
+    keys.push_back({candidate->model, candidate->canonical_from_model, candidate->icp.iterations,
+                    PoseCandidate()});
+  }
+  RunJobs(options.threads, to_refine.size(), [&](size_t j) {
+    RefineCandidate(context, refine_options, options, to_refine[j]);
   });
+  if (memo != nullptr) {
+    for (size_t j = 0; j < to_refine.size(); ++j) {
+      keys[j].result = *to_refine[j];
+      memo->Add(std::move(keys[j]));
+    }
+  }
   for (const PoseCandidate* candidate : chosen) {
     result.best_score = std::max(result.best_score, candidate->alignment.score);
   }
@@ -498,7 +582,7 @@ RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> c
 
 std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& fine,
                                        double best_score, int views_per_model,
-                                       const RecognitionOptions& options) {
+                                       const RecognitionOptions& options, PoseMemo* memo) {
   // The best verification is too low to be the right model at the right pose, so the
   // descriptors (corrupted by occlusion) probably ranked the right model or its right
   // views too low, or the polar signature (about a centroid shifted by the occluder) gave
@@ -550,8 +634,8 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
     part.models.assign(request.models.begin() + first,
                        request.models.begin() + std::min(num_models, first + batch));
     RefinementResult refined = RefinePoses(
-        context, ScreenPoses(context, fine, part, options),
-        std::min(refine_per_batch, widening.refine_candidates), options);
+        context, ScreenPoses(context, fine, part, options, memo),
+        std::min(refine_per_batch, widening.refine_candidates), options, memo);
     for (PoseCandidate& candidate : refined.candidates) wide.push_back(std::move(candidate));
     if (refined.best_score >= widening.below_score) break;
     best_so_far = std::max(best_so_far, refined.best_score);
@@ -564,16 +648,18 @@ std::vector<PoseCandidate> EstimatePoses(StageContext* context, const FineResult
                                          const RecognitionOptions& options) {
   if (options.screening.models <= 0 || fine.ranked.empty()) return {};
   const ScreeningRequest request = PlanScreening(*context, fine, options);
+  // The widened search and the class screening come back to what the first screening ran.
+  PoseMemo memo;
   RefinementResult refined =
-      RefinePoses(context, ScreenPoses(context, fine, request, options),
-                  options.refinement.candidates, options);
+      RefinePoses(context, ScreenPoses(context, fine, request, options, &memo),
+                  options.refinement.candidates, options, &memo);
   std::vector<PoseCandidate> posed = std::move(refined.candidates);
-  for (PoseCandidate& candidate :
-       WidenSearch(context, fine, refined.best_score, request.views_per_model, options)) {
+  for (PoseCandidate& candidate : WidenSearch(context, fine, refined.best_score,
+                                              request.views_per_model, options, &memo)) {
     posed.push_back(std::move(candidate));
   }
   for (PoseCandidate& candidate : ScreenClasses(context, fine, posed, request.views_per_model,
-                                                options)) {
+                                                options, &memo)) {
     posed.push_back(std::move(candidate));
   }
   return posed;
@@ -581,7 +667,8 @@ std::vector<PoseCandidate> EstimatePoses(StageContext* context, const FineResult
 
 std::vector<PoseCandidate> ScreenClasses(StageContext* context, const FineResult& fine,
                                          const std::vector<PoseCandidate>& posed,
-                                         int views_per_model, const RecognitionOptions& options) {
+                                         int views_per_model, const RecognitionOptions& options,
+                                         PoseMemo* memo) {
   const AssemblyOptions& assembly = options.assembly;
   if (!assembly.class_ranking || assembly.class_screen_classes <= 0 ||
       options.screening.models <= 0 || options.refinement.candidates <= 0) {
@@ -624,10 +711,10 @@ std::vector<PoseCandidate> ScreenClasses(StageContext* context, const FineResult
   request.views_per_model = views_per_model;
   request.rank_all_views = options.screening.rank_all_views;
   request.hypotheses = options.pose;
-  std::vector<PoseCandidate> screened = ScreenPoses(context, fine, request, options);
+  std::vector<PoseCandidate> screened = ScreenPoses(context, fine, request, options, memo);
   // The best hypothesis of each screened model refined.
   return RefinePoses(context, std::move(screened), static_cast<int>(request.models.size()),
-                     options)
+                     options, memo)
       .candidates;
 }
 

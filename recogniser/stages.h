@@ -17,6 +17,7 @@
 // is deterministic: the same inputs give bit-identical outputs.
 #pragma once
 
+#include <atomic>
 #include <mutex>
 #include <string>
 #include <unordered_map>
@@ -133,6 +134,42 @@ struct PoseCandidate {
   bool refined = false;
 };
 
+// The short ICPs and refinements already run for one query with one set of options. The
+// widened search and the class screening come back to views, roll hypotheses and
+// candidates that the first screening ran (the models it screened, their first views, the
+// first of their rolls — a longer roll list starts with the shorter one), whose results
+// are the same: with a memo they are looked up, not run again, and the answers are
+// bit-identical. Keyed by view (model) and the exact starting pose; EstimatePoses keeps
+// one for its stages. Not for reuse across queries or options.
+class PoseMemo {
+ public:
+  struct Screened {
+    int view = 0;
+    Rigid3d initial;  // the roll hypothesis' pose
+    IcpResult icp;
+    AlignmentScore alignment;
+  };
+  struct Refined {
+    int model = 0;
+    Rigid3d initial;      // the screened pose
+    int quick_iterations = 0;
+    PoseCandidate result;  // its refined view, pose, ICP and verification
+  };
+  // nullptr when not run yet.
+  const Screened* FindScreened(int view, const Rigid3d& initial) const;
+  const Refined* FindRefined(int model, const Rigid3d& initial, int quick_iterations) const;
+  // Not thread-safe: the stages add after their parallel jobs, from the calling thread.
+  void Add(Screened screened);
+  void Add(Refined refined);
+  size_t screened_hits() const { return screened_hits_; }
+  size_t refined_hits() const { return refined_hits_; }
+
+ private:
+  std::unordered_map<int, std::vector<Screened>> screened_;  // by view
+  std::vector<Refined> refined_;
+  mutable std::atomic<size_t> screened_hits_{0}, refined_hits_{0};
+};
+
 // Which models get pose hypotheses, how many views each, ranked how, with which roll
 // hypotheses.
 struct ScreeningRequest {
@@ -148,9 +185,11 @@ ScreeningRequest PlanScreening(const StageContext& context, const FineResult& fi
 // Per model of the request: its views ranked, up to views_per_model of them at least
 // view_separation apart; roll hypotheses and a short ICP on a prefix of each view's
 // cloud; the best hypothesis per view. Sorted by score, best first (stable).
+// With a memo: short ICPs it holds are looked up, and those run are added to it.
 std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& fine,
                                        const ScreeningRequest& request,
-                                       const RecognitionOptions& options);
+                                       const RecognitionOptions& options,
+                                       PoseMemo* memo = nullptr);
 
 struct RefinementResult {
   std::vector<PoseCandidate> candidates;  // as given; the refined ones marked `refined`
@@ -159,15 +198,18 @@ struct RefinementResult {
 // Refines the best hypothesis of the first `count` distinct models of `candidates`
 // (sorted by their short-ICP score): ICP with the stored view nearest to the current
 // pose, repeated once the pose has settled, and the full verification with that view.
+// With a memo, as ScreenPoses.
 RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> candidates,
-                             int count, const RecognitionOptions& options);
+                             int count, const RecognitionOptions& options,
+                             PoseMemo* memo = nullptr);
 
 // The widened search (WideningOptions) when `best_score` is below its threshold: more
 // models (by their best view over the whole database), all views ranked, more views and
 // rolls each, refined. Empty when not triggered.
 std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& fine,
                                        double best_score, int views_per_model,
-                                       const RecognitionOptions& options);
+                                       const RecognitionOptions& options,
+                                       PoseMemo* memo = nullptr);
 
 // With class ranking (AssemblyOptions::class_screen_*): each of the first
 // class_screen_classes classes of the fine ranking with fewer than class_screen_models
@@ -177,7 +219,8 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
 // only the classes of the first models. Empty when off.
 std::vector<PoseCandidate> ScreenClasses(StageContext* context, const FineResult& fine,
                                          const std::vector<PoseCandidate>& posed,
-                                         int views_per_model, const RecognitionOptions& options);
+                                         int views_per_model, const RecognitionOptions& options,
+                                         PoseMemo* memo = nullptr);
 
 // Screening → refinement → widening → class screening: every pose candidate (empty when
 // ScreeningOptions::models is 0 or nothing was flagged).
