@@ -695,9 +695,11 @@ class SightGrid {
 // model's diameter), and across whose gap the camera did not see: along the segment
 // between their nearest points (on a grid of 3 scene leaves) at most join_max_seen of the
 // samples have the cloud's nearest point in their line of sight more than a scene leaf
-// behind them. Two objects apart on the table show the table through the gap; the parts
-// of one object that a shadow or a part too thin to scan (a wine glass's stem, a bottle's
-// shoulder at a grazing angle) cut apart show nothing there.
+// behind them — samples whose line of sight meets a point of the two parts themselves not
+// counted. Two objects apart on the table show the table through the gap; the parts of
+// one object that a shadow or a part too thin to scan (a wine glass's stem, a bottle's
+// shoulder at a grazing angle) cut apart show nothing there, or the object itself (a
+// lying wine glass: the line between its bowl and its foot passes over its stem).
 std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
                                                  const std::vector<int>& label,
                                                  int num_clusters, int num_labels) {
@@ -761,11 +763,25 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
       const float length = std::sqrt(best);
       const int steps = static_cast<int>(length / options.scene_leaf);
       int samples = 0, seen = 0;
+      // A sample whose line of sight meets a point of the pair itself (within a coarse
+      // cell of their samples) tells nothing: the camera sees a part of the same object
+      // there (a lying wine glass's stem below the line between its bowl and its foot).
+      const auto of_the_pair = [&](const Eigen::Vector3f& point) {
+        for (const std::vector<Eigen::Vector3f>* part : {&sample[a], &sample[b]}) {
+          for (const Eigen::Vector3f& q : *part) {
+            if ((q - point).squaredNorm() < coarse * coarse) return true;
+          }
+        }
+        return false;
+      };
       for (int k = 1; k < steps; ++k) {
         const float t = static_cast<float>(k) / steps;
         const Eigen::Vector3f s = pa + t * (pb - pa);
-        ++samples;
         const float seen_depth = sight->SeenDepth(s);  // ∞: nothing seen there
+        if (std::isfinite(seen_depth) && s.z() > 0.0f && of_the_pair(s * (seen_depth / s.z()))) {
+          continue;
+        }
+        ++samples;
         seen += std::isfinite(seen_depth) &&
                 seen_depth > s.z() + static_cast<float>(options.scene_leaf);
       }

@@ -413,6 +413,55 @@ TEST(SceneRecognitionClassEvidence, AMugOnItsSideIsNotTakenForAWiderGlass) {
   }
 }
 
+// A wine glass lying on its side (an unseen instance): its stem, thin and seen from above,
+// leaves its bowl and its foot apart in the segmentation, and the line between their
+// nearest points passes over the stem, which the camera sees behind it — points of the
+// two parts themselves, which tell nothing about a gap between two objects. The two parts
+// must be joined and the whole found as a wine glass (procedural tables, seed 701, scene
+// 6: a wine glass found as a mug from its bowl alone, the foot left unknown).
+TEST(SceneRecognitionJoins, AWineGlassLyingOnItsSideIsJoinedAcrossItsStem) {
+  const testing::ScratchDir scratch;
+  const std::unique_ptr<Database> db = testing::ProceduralDatabase(
+      scratch, {{ObjectClass::kWineGlass, {2, 3, 4, 5}},
+                {ObjectClass::kMug, {2, 3, 4, 5}},
+                {ObjectClass::kCan, {2, 3, 4, 5}}});
+  const TableFrame frame;
+  Scene scene;
+  scene.objects.push_back(TableTop(frame));
+  // The glass at rest on its bowl's rim and its foot's edge, as in that scene (world from
+  // model, world z up; its lowest point on the table).
+  const TriangleMesh glass = MakeObject(ObjectClass::kWineGlass, 1817);
+  Eigen::Matrix3d lying;
+  lying << 0.888850, -0.336699, 0.310772,  //
+      0.311131, -0.054392, -0.948809,       //
+      0.336367, 0.940040, 0.056411;
+  lying = Eigen::Quaterniond(lying).normalized().toRotationMatrix();
+  double lowest = std::numeric_limits<double>::infinity();
+  for (const Eigen::Vector3f& v : glass.vertices) {
+    lowest = std::min(lowest, (lying * v.cast<double>()).z());
+  }
+  Rigid3d pose = frame.Pose(0.0, 0.02, 0.0);
+  pose.rotation = frame.cam_from_world * lying;
+  pose.translation += frame.cam_from_world * Eigen::Vector3d(0, 0, -lowest);
+  scene.objects.push_back({glass, pose, 0.8, {}});
+  const PointCloud cloud = ScanScene(scene);
+  const SceneRecogniser recogniser(*db);
+  const SceneRecognitionResult result = recogniser.Recognise(cloud);
+  std::printf("%s\n", SceneBriefReport(result).c_str());
+  EXPECT_GE(result.segmentation.clusters.size(), 2u)
+      << "the scan no longer splits the glass: the test does not test the join";
+  const Eigen::Vector3d centre = pose * MakePoseTruthModel(glass).center;
+  ASSERT_EQ(result.objects.size(), 1u);
+  const RecognisedObject& found = result.objects.front();
+  EXPECT_EQ(found.best().class_name, "wine_glass");
+  const Eigen::Vector3d found_centre =
+      found.best().cam_from_model * MakePoseTruthModel(MakeObject(ObjectClass::kWineGlass, 2)).center;
+  std::printf("found as %s, centre %.1f mm off (the database instance's centre)\n",
+              found.best().model_name.c_str(), 1e3 * (found_centre - centre).norm());
+  // Another instance's centre: within 2 cm (the bowl alone, found as a mug, was 13 cm off).
+  EXPECT_LT((found_centre - centre).norm(), 0.02);
+}
+
 // Scaled hypotheses (SceneRecognitionOptions::max_scale): the database holds two boxes
 // (procedural 3 and 10) and a mug; on the table stands a box of other proportions — box 3
 // 1.4× as deep and 0.8× as high — and the mug. The box must be found as a box whose scaled dimensions
