@@ -696,7 +696,7 @@ class SightGrid {
 // between their nearest points (on a grid of 3 scene leaves) at most join_max_seen of the
 // samples have the cloud's nearest point in their line of sight more than a scene leaf
 // behind them — samples whose line of sight meets a point of the two parts themselves not
-// counted. Two objects apart on the table show the table through the gap; the parts of
+// counted, and fewer than three others counting as unseen. Two objects apart on the table show the table through the gap; the parts of
 // one object that a shadow or a part too thin to scan (a wine glass's stem, a bottle's
 // shoulder at a grazing angle) cut apart show nothing there, or the object itself (a
 // lying wine glass: the line between its bowl and its foot passes over its stem).
@@ -785,7 +785,11 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
         seen += std::isfinite(seen_depth) &&
                 seen_depth > s.z() + static_cast<float>(options.scene_leaf);
       }
-      const bool unseen = samples == 0 || seen <= options.join_max_seen * samples;
+      // Fewer than kMinGapSamples samples that tell anything: nothing to judge the gap by
+      // (a lying wine glass whose bowl hides most of the line to its foot), so the two
+      // are tried joined — the scene verification judges what that explains.
+      constexpr int kMinGapSamples = 3;
+      const bool unseen = samples < kMinGapSamples || seen <= options.join_max_seen * samples;
       spdlog::debug("labels {} and {}: {:.0f} mm apart, {} of {} samples of the gap seen "
                     "through{}",
                     a, b, 1e3 * length, seen, samples, unseen ? ": joined" : "");
