@@ -366,6 +366,53 @@ size_t PlaneNeeds(const std::vector<int>& band, const TableSegmentationOptions& 
   return static_cast<size_t>(std::ceil(options.min_plane_fraction * band.size()));
 }
 
+// Band points lying between min_gap and max_height below `plane` (what the camera could
+// not see under a table, short of a floor).
+std::vector<int> PointsBelow(const PointCloud& cloud, const std::vector<int>& band,
+                             const TableSegmentationOptions& options, const TablePlane& plane) {
+  const double min_gap = std::max(2.0 * options.min_height, 3.0 * options.plane_distance);
+  std::vector<int> below;
+  for (int i : band) {
+    const double depth = -plane.Height(cloud.points[i]);
+    if (depth >= min_gap && depth <= options.max_height) below.push_back(i);
+  }
+  return below;
+}
+
+// A large face of an object turned to the camera (the front of a box bigger than the table
+// seen around it) can win the RANSAC: the table, the objects behind and the box's top then
+// lie below "the table". A camera sees nothing under a table short of the floor, so when at
+// least `needed` band points lie below the found plane (within max_height), the plane of
+// those points is the table instead — if at most a quarter as many points lie below it, and
+// the found plane's points stand on it (90% of them above it). A table with a wall behind
+// it keeps its plane: the wall's points lie above the table, not below.
+TablePlane BeneathAFaceOfAnObject(const PointCloud& cloud, const std::vector<int>& band,
+                                  const TableSegmentationOptions& options, size_t needed,
+                                  const TablePlane& plane) {
+  const std::vector<int> below = PointsBelow(cloud, band, options, plane);
+  if (below.size() < std::max<size_t>(needed, 3)) return plane;
+  const size_t lower_needed = (needed + 1) / 2;
+  TablePlane lower = FitTablePlane(cloud, below, options, lower_needed);
+  if (!lower.found) return plane;
+  // The largest face below may be a big box's top; the table is under it.
+  lower = DescendToSupportingPlane(cloud, band, options, lower_needed, lower);
+  const double d = options.plane_distance;
+  if (!RefitOnInliers(cloud, band, {d, d}, &lower) ||
+      static_cast<size_t>(lower.inliers) < lower_needed) {
+    return plane;
+  }
+  if (PointsBelow(cloud, band, options, lower).size() * 4 > below.size()) return plane;
+  size_t on_plane = 0, standing = 0;
+  for (int i : band) {
+    if (std::abs(plane.Height(cloud.points[i])) > d) continue;
+    ++on_plane;
+    standing += lower.Height(cloud.points[i]) >= -d;
+  }
+  if (standing < 0.9 * on_plane) return plane;
+  lower.found = true;
+  return lower;
+}
+
 // The table plane of the band's points (RANSAC, least squares, the supporting plane
 // below), facing the camera.
 TablePlane PlaneOfBand(const PointCloud& cloud, const std::vector<int>& band,
@@ -373,6 +420,12 @@ TablePlane PlaneOfBand(const PointCloud& cloud, const std::vector<int>& band,
   const size_t needed = PlaneNeeds(band, options);
   TablePlane plane = FitTablePlane(cloud, band, options, needed);
   if (plane.found) plane = DescendToSupportingPlane(cloud, band, options, needed, plane);
+  if (plane.found) {
+    const TablePlane beneath = BeneathAFaceOfAnObject(cloud, band, options, needed, plane);
+    if (beneath.normal != plane.normal || beneath.offset != plane.offset) {
+      plane = DescendToSupportingPlane(cloud, band, options, needed, beneath);
+    }
+  }
   if (plane.found && plane.offset < 0) {  // cannot happen after FitPlane, kept as an invariant
     plane.normal = -plane.normal;
     plane.offset = -plane.offset;
