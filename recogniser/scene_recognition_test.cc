@@ -64,6 +64,20 @@ struct TableFrame {
   }
 };
 
+// `mesh` turned by `world_from_model` (world z up) at table position (x, y), its lowest
+// point on the table: cam_from_model.
+Rigid3d LaidOnTable(const TableFrame& frame, const TriangleMesh& mesh,
+                    const Eigen::Matrix3d& world_from_model, double x, double y) {
+  double lowest = std::numeric_limits<double>::infinity();
+  for (const Eigen::Vector3f& v : mesh.vertices) {
+    lowest = std::min(lowest, (world_from_model * v.cast<double>()).z());
+  }
+  Rigid3d pose = frame.Pose(x, y, 0.0);
+  pose.rotation = frame.cam_from_world * world_from_model;
+  pose.translation += frame.cam_from_world * Eigen::Vector3d(0, 0, -lowest);
+  return pose;
+}
+
 SceneObject TableTop(const TableFrame& frame) {
   SceneObject table;
   // MakePlane's faces point to −z: turned over (about x) they face up, to the camera.
@@ -372,11 +386,7 @@ TEST(SceneRecognitionClassEvidence, AMugOnItsSideIsNotTakenForAWiderGlass) {
   const Eigen::Matrix3d lying = Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitZ()).matrix() *
                                 Eigen::AngleAxisd(M_PI / 2, Eigen::Vector3d::UnitX()).matrix() *
                                 Eigen::AngleAxisd(M_PI / 3, Eigen::Vector3d::UnitZ()).matrix();
-  double lowest = std::numeric_limits<double>::infinity();
-  for (const Eigen::Vector3f& v : mug.vertices) lowest = std::min(lowest, (lying * v.cast<double>()).z());
-  Rigid3d mug_pose = frame.Pose(0.06, 0.02, 0.0);
-  mug_pose.rotation = frame.cam_from_world * lying;
-  mug_pose.translation += frame.cam_from_world * Eigen::Vector3d(0, 0, -lowest);
+  const Rigid3d mug_pose = LaidOnTable(frame, mug, lying, 0.06, 0.02);
   scene.objects.push_back({mug, mug_pose, 0.8, {}});
   const PointCloud cloud = ScanScene(scene);
   const SceneRecogniser recogniser(*db);
@@ -436,13 +446,7 @@ TEST(SceneRecognitionJoins, AWineGlassLyingOnItsSideIsJoinedAcrossItsStem) {
       0.311131, -0.054392, -0.948809,       //
       0.336367, 0.940040, 0.056411;
   lying = Eigen::Quaterniond(lying).normalized().toRotationMatrix();
-  double lowest = std::numeric_limits<double>::infinity();
-  for (const Eigen::Vector3f& v : glass.vertices) {
-    lowest = std::min(lowest, (lying * v.cast<double>()).z());
-  }
-  Rigid3d pose = frame.Pose(0.0, 0.02, 0.0);
-  pose.rotation = frame.cam_from_world * lying;
-  pose.translation += frame.cam_from_world * Eigen::Vector3d(0, 0, -lowest);
+  const Rigid3d pose = LaidOnTable(frame, glass, lying, 0.0, 0.02);
   scene.objects.push_back({glass, pose, 0.8, {}});
   const PointCloud cloud = ScanScene(scene);
   const SceneRecogniser recogniser(*db);
