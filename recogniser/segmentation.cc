@@ -237,6 +237,12 @@ TablePlane FitTablePlane(const PointCloud& cloud, const std::vector<int>& band,
   return plane;
 }
 
+// How far below a plane a point must lie to be under it, not on it (its noise, an object's
+// lowest rows): what DescendToSupportingPlane and PointsBelow count.
+double MinGapBelow(const TableSegmentationOptions& options) {
+  return std::max(2.0 * options.min_height, 3.0 * options.plane_distance);
+}
+
 // A horizontal face larger than the visible table (the top of a big box, a tray) wins the
 // RANSAC: everything then lies below "the table" and nothing stands on it. The table is the
 // plane the objects rest on, so while a plane parallel to the found one (within
@@ -249,7 +255,7 @@ TablePlane DescendToSupportingPlane(const PointCloud& cloud, const std::vector<i
                                     const TableSegmentationOptions& options, size_t needed,
                                     TablePlane plane) {
   constexpr double kParallelDegrees = 8.0;
-  const double min_gap = std::max(2.0 * options.min_height, 3.0 * options.plane_distance);
+  const double min_gap = MinGapBelow(options);
   const double bin = options.plane_distance;
   const int bins = static_cast<int>(std::ceil(options.max_height / bin)) + 1;
   for (int step = 0; step < 4; ++step) {
@@ -370,7 +376,7 @@ size_t PlaneNeeds(const std::vector<int>& band, const TableSegmentationOptions& 
 // not see under a table, short of a floor).
 std::vector<int> PointsBelow(const PointCloud& cloud, const std::vector<int>& band,
                              const TableSegmentationOptions& options, const TablePlane& plane) {
-  const double min_gap = std::max(2.0 * options.min_height, 3.0 * options.plane_distance);
+  const double min_gap = MinGapBelow(options);
   std::vector<int> below;
   for (int i : band) {
     const double depth = -plane.Height(cloud.points[i]);
@@ -420,12 +426,7 @@ TablePlane PlaneOfBand(const PointCloud& cloud, const std::vector<int>& band,
   const size_t needed = PlaneNeeds(band, options);
   TablePlane plane = FitTablePlane(cloud, band, options, needed);
   if (plane.found) plane = DescendToSupportingPlane(cloud, band, options, needed, plane);
-  if (plane.found) {
-    const TablePlane beneath = BeneathAFaceOfAnObject(cloud, band, options, needed, plane);
-    if (beneath.normal != plane.normal || beneath.offset != plane.offset) {
-      plane = DescendToSupportingPlane(cloud, band, options, needed, beneath);
-    }
-  }
+  if (plane.found) plane = BeneathAFaceOfAnObject(cloud, band, options, needed, plane);
   if (plane.found && plane.offset < 0) {  // cannot happen after FitPlane, kept as an invariant
     plane.normal = -plane.normal;
     plane.offset = -plane.offset;
