@@ -1,7 +1,8 @@
 // sope recognise --db DB.sopedb --cloud CLOUD.{ply,pcd} [--top 4] [--json] [--table
-//                [--object-clouds DIR]]
+//                [--object-clouds DIR] [--min-range M] [--max-range M]]
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 
 #include <spdlog/spdlog.h>
 
@@ -27,6 +28,7 @@ int RunRecognise(int argc, char** argv) {
   bool json = false, no_pose = false, table = false;
   std::string object_clouds_dir;
   std::string coarse_index_path;
+  std::optional<double> min_range, max_range;
   cli::LoggingFlags logging;
   app.add_option("--db", db_path, "Database file (.sopedb, from sope build-db)")->required();
   app.add_option("--cloud", cloud_path, "Query cloud (.ply or .pcd)")->required();
@@ -41,6 +43,14 @@ int RunRecognise(int argc, char** argv) {
   app.add_option("--object-clouds", object_clouds_dir,
                  "--table: write each recognised object's segment to DIR/object_K.ply (K as in "
                  "\"objects\") and each unknown one's to DIR/unknown_K.ply");
+  app.add_option("--min-range", min_range,
+                 "--table: segment only points at least this far from the camera, metres "
+                 "(default 0.05)");
+  app.add_option("--max-range", max_range,
+                 "--table: segment only points at most this far from the camera, metres "
+                 "(default 2; a scan-and-recognise result gives its band as "
+                 "scan.range_band_m: the same band recognises its scan_NNNN.ply as the scan "
+                 "did)");
   app.add_option("--coarse-index", coarse_index_path,
                  "Coarse stage from a FAISS binary index of the database's codes (sope export-db "
                  "--faiss-binary) instead of the built-in Hamming scan");
@@ -63,6 +73,9 @@ int RunRecognise(int argc, char** argv) {
   if (table) {
     SceneRecognitionOptions scene_options;
     scene_options.recognition = options;
+    if (min_range) scene_options.segmentation.min_range = *min_range;
+    if (max_range) scene_options.segmentation.max_range = *max_range;
+    scene_options.Check();
     const SceneRecognitionResult scene = SceneRecogniser(*db).Recognise(cloud, scene_options);
     if (!object_clouds_dir.empty()) {
       std::error_code error;
@@ -88,6 +101,7 @@ int RunRecognise(int argc, char** argv) {
     return 0;
   }
   SOPE_CHECK(object_clouds_dir.empty(), "--object-clouds needs --table");
+  SOPE_CHECK(!min_range && !max_range, "--min-range and --max-range need --table");
   const RecognitionResult result = Recogniser(*db).Recognise(cloud, options);
   SOPE_CHECK(!result.empty(), "no suggestion (the database has no comparable view)");
   if (json) {

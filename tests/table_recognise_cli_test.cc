@@ -1,7 +1,8 @@
 // `sope recognise --table` on bad and empty input (issue 12): a cloud with no plane and a
 // table with nothing on it are results ("objects": [], exit 0); a cloud with a NaN point
 // or a single point is one clear error line and a non-zero exit. And a synthetic table
-// with one known object standing on it: one object, segmented PLY written.
+// with one known object standing on it: one object, segmented PLY written; the range band
+// (--min-range, --max-range) leaves it out when it lies outside.
 #include <cmath>
 #include <filesystem>
 #include <limits>
@@ -99,9 +100,9 @@ TEST_F(TableRecogniseCli, NanAndSinglePointAreOneLineErrors) {
       "recognise", "1 point");
 }
 
-TEST_F(TableRecogniseCli, FindsTheMugOnTheTableAndWritesItsSegment) {
-  // The mug rendered by an ideal depth camera from 45° above, standing on the table plane
-  // (model z up along the table normal), plus the table points.
+// The mug rendered by an ideal depth camera from 45° above, standing on the table plane
+// (model z up along the table normal), plus the table points; `cam_from_model` gets its pose.
+PointCloud MugOnTheTable(Rigid3d* cam_from_model_out) {
   const Eigen::Vector3f up = kU.cross(kV).normalized() * (kU.cross(kV).dot(-kOrigin) > 0 ? 1.0f : -1.0f);
   Rigid3d cam_from_model;
   cam_from_model.rotation.col(0) = kU.cast<double>();
@@ -115,7 +116,6 @@ TEST_F(TableRecogniseCli, FindsTheMugOnTheTableAndWritesItsSegment) {
   DepthRenderer renderer(MakePinhole(1280, 960, 1.0));
   renderer.SetMesh(mug);
   PointCloud scene = renderer.Render(cam_from_model);
-  ASSERT_GT(scene.size(), 2000u);
   // Table points not hidden behind the mug: keep those whose ray misses the mug's cloud
   // bounding box (coarse, enough for the test: the hidden strip is small).
   const PointCloud table = TablePoints(kOrigin, kU, kV);
@@ -130,6 +130,15 @@ TEST_F(TableRecogniseCli, FindsTheMugOnTheTableAndWritesItsSegment) {
     scene.points.push_back(p);
   }
   scene.normals.clear();
+  *cam_from_model_out = cam_from_model;
+  return scene;
+}
+
+TEST_F(TableRecogniseCli, FindsTheMugOnTheTableAndWritesItsSegment) {
+  Rigid3d cam_from_model;
+  const PointCloud scene = MugOnTheTable(&cam_from_model);
+  ASSERT_GT(scene.size(), 2000u);
+  const TriangleMesh mug = MakeObject(ObjectClass::kMug, 0);
   WritePointCloud(scratch_->File("mug_table.ply"), scene);
   const testing::CommandRun run =
       Sope("recognise --table --json --db " + Db() + " --cloud " + scratch_->File("mug_table.ply") +
@@ -157,6 +166,34 @@ TEST_F(TableRecogniseCli, FindsTheMugOnTheTableAndWritesItsSegment) {
   const PointCloud segment = ReadPointCloud(scratch_->File("segments/object_0.ply"));
   EXPECT_EQ(static_cast<int>(segment.size()), j["objects"][0]["points"].get<int>());
   EXPECT_GT(segment.size(), 1000u);
+}
+
+// --min-range / --max-range: the segmentation's range band (what scan-and-recognise reports
+// as scan.range_band_m), so that a saved scan is recognised again as the scan was. The mug
+// stands 0.6 m from the camera: a band ending at 0.5 m or starting at 0.75 m leaves it out.
+TEST_F(TableRecogniseCli, TheRangeBandLeavesOutWhatLiesOutsideIt) {
+  Rigid3d cam_from_model;
+  WritePointCloud(scratch_->File("mug_band.ply"), MugOnTheTable(&cam_from_model));
+  const std::string base =
+      "recognise --table --json --db " + Db() + " --cloud " + scratch_->File("mug_band.ply");
+  const testing::CommandRun inside = Sope(base + " --min-range 0.3 --max-range 0.9", *scratch_);
+  ASSERT_EQ(inside.exit_code, 0) << inside.err;
+  const nlohmann::json in = nlohmann::json::parse(inside.out);
+  ASSERT_EQ(in["objects"].size(), 1u) << inside.out.substr(0, 600);
+  EXPECT_EQ(in["objects"][0]["class"], "mug");
+  for (const char* band : {" --max-range 0.5", " --min-range 0.75"}) {
+    const testing::CommandRun outside = Sope(base + band, *scratch_);
+    ASSERT_EQ(outside.exit_code, 0) << band << ": " << outside.err;
+    const nlohmann::json out = nlohmann::json::parse(outside.out);
+    EXPECT_EQ(out["objects"].size(), 0u) << band << ": " << outside.out.substr(0, 600);
+  }
+  testing::ExpectOneLineError(Sope(base + " --min-range 0.9 --max-range 0.5", *scratch_),
+                              "recognise", "range");
+  testing::ExpectOneLineError(
+      Sope("recognise --db " + Db() + " --cloud " + scratch_->File("mug_band.ply") +
+               " --max-range 0.9",
+           *scratch_),
+      "recognise", "--table");
 }
 
 }  // namespace
