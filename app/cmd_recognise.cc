@@ -60,6 +60,12 @@ int RunRecognise(int argc, char** argv) {
 
   if (no_pose) options.screening.models = 0;
   options.Check();
+  SOPE_CHECK(table || object_clouds_dir.empty(), "--object-clouds needs --table");
+  SOPE_CHECK(table || (!min_range && !max_range), "--min-range and --max-range need --table");
+  SceneRecognitionOptions scene_options;  // its recognition options set below
+  if (min_range) scene_options.segmentation.min_range = *min_range;
+  if (max_range) scene_options.segmentation.max_range = *max_range;
+  if (table) scene_options.Check();
 
   const std::unique_ptr<Database> db = Database::Open(db_path);
   const PointCloud cloud = ReadPointCloud(cloud_path);
@@ -71,11 +77,7 @@ int RunRecognise(int argc, char** argv) {
     };
   }
   if (table) {
-    SceneRecognitionOptions scene_options;
     scene_options.recognition = options;
-    if (min_range) scene_options.segmentation.min_range = *min_range;
-    if (max_range) scene_options.segmentation.max_range = *max_range;
-    scene_options.Check();
     const SceneRecognitionResult scene = SceneRecogniser(*db).Recognise(cloud, scene_options);
     if (!object_clouds_dir.empty()) {
       std::error_code error;
@@ -100,8 +102,6 @@ int RunRecognise(int argc, char** argv) {
                              : SceneBriefReport(scene).c_str());
     return 0;
   }
-  SOPE_CHECK(object_clouds_dir.empty(), "--object-clouds needs --table");
-  SOPE_CHECK(!min_range && !max_range, "--min-range and --max-range need --table");
   const RecognitionResult result = Recogniser(*db).Recognise(cloud, options);
   SOPE_CHECK(!result.empty(), "no suggestion (the database has no comparable view)");
   if (json) {
