@@ -230,7 +230,8 @@ const std::vector<OptionField<RecognitionOptions>>& RecognitionOptions::Fields()
               "One suggestion per model, per class, or per database view (thesis)")
             .Flag("--grouping"),
         Field(&O::threads, "threads",
-              "Threads of the pose screening and refinement (same answers for any count)")
+              "Threads of the pose screening and refinement, and of a table scene's clusters' "
+              "first recognitions (same answers for any count)")
             .AtLeast(1)
             .AtMost(64)
             .Flag("--pose-threads")};

@@ -244,7 +244,9 @@ struct RecognitionOptions {
   // parallel (the calling thread and threads − 1 more; each view's hypotheses and each
   // candidate's refinement are independent), the results kept in order — the answers are
   // the same for any count. 1 for figures in CPU time per query (evaluation); the live
-  // loop's last frame → result can use the cores the capture no longer needs.
+  // loop's last frame → result can use the cores the capture no longer needs. A tabletop
+  // scene (SceneRecogniser) with several clusters recognises them side by side instead,
+  // each on one thread.
   int threads = 1;
   // Pose-only queries (thesis §5, the object known): when not empty, only these database
   // models are considered and all their views are ranked (no coarse search).

@@ -421,15 +421,18 @@ bool PutOnTable(const SceneContext& ctx, Hypothesis* h) {
   return true;
 }
 
-// Recognises `points` of `cluster` and adds up to hypotheses_per_cluster hypotheses (each
-// posed suggestion scoring at least min_hypothesis_score, put down on the table, and its
-// flipped twin) to the pool. Returns the recognition.
+// Recognises `points` of `cluster` (or takes `recognised`, their recognition already
+// made) and adds up to hypotheses_per_cluster hypotheses (each posed suggestion scoring at
+// least min_hypothesis_score, put down on the table, and its flipped twin) to the pool.
+// Returns the recognition.
 RecognitionResult AddClusterHypotheses(const SceneContext& ctx, int cluster,
-                                       const PointCloud& points, HypothesisPool* pool) {
+                                       const PointCloud& points, HypothesisPool* pool,
+                                       const RecognitionResult* recognised = nullptr) {
   const SceneRecognitionOptions& options = ctx.options;
   const Stopwatch watch;
-  const RecognitionResult recognition = RecogniseCluster(ctx, points);
-  pool->recognise_ms += watch.WallMs();
+  const RecognitionResult recognition =
+      recognised != nullptr ? *recognised : RecogniseCluster(ctx, points);
+  if (recognised == nullptr) pool->recognise_ms += watch.WallMs();
   if (pool->cluster_results[cluster].empty()) pool->cluster_results[cluster] = recognition;
   const bool on_table = options.snap_to_plane && ctx.plane.found;
   int taken = 0;
@@ -1961,8 +1964,31 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
   pool.pose_queries.resize(clusters.size());
   pool.pose_query_built.assign(clusters.size(), 0);
   pool.split_tried.assign(clusters.size(), 0);
-  for (size_t c = 0; c < clusters.size(); ++c) {
-    AddClusterHypotheses(ctx, static_cast<int>(c), clusters[c].cloud, &pool);
+  {
+    // The first looks, one recognition per cluster: independent of each other, so with
+    // several threads (recognition.threads) the clusters are recognised side by side, each
+    // on one thread (a recognition's answer is the same for any thread count), and their
+    // hypotheses added in cluster order as before. One cluster keeps the threads for its
+    // own pose stages.
+    const int threads = options.recognition.threads;
+    std::vector<RecognitionResult> first_looks;
+    if (threads > 1 && clusters.size() > 1) {
+      const Stopwatch watch;
+      SceneRecognitionOptions one_thread = options;
+      one_thread.recognition.threads = 1;
+      const SceneContext ctx_one_thread{*this,   recogniser_,        database_,
+                                        cloud,   one_thread,         result.segmentation.plane,
+                                        clusters, scene,             max_diameter};
+      first_looks.resize(clusters.size());
+      RunJobs(threads, clusters.size(), [&](size_t c) {
+        first_looks[c] = RecogniseCluster(ctx_one_thread, clusters[c].cloud);
+      });
+      pool.recognise_ms += watch.WallMs();
+    }
+    for (size_t c = 0; c < clusters.size(); ++c) {
+      AddClusterHypotheses(ctx, static_cast<int>(c), clusters[c].cloud, &pool,
+                           first_looks.empty() ? nullptr : &first_looks[c]);
+    }
   }
   std::vector<HypothesisEvidence> evidence = VerifyPool(ctx, &pool);
   // Second looks, in rounds while they add hypotheses (each look at most once per cluster

@@ -709,6 +709,42 @@ TEST_F(SceneRecognitionTest, WarmingUpOnAnotherThreadChangesNoResult) {
   }
 }
 
+// With two threads (recognition.threads) the clusters' first looks run side by side, each
+// on one thread: the same hypotheses, objects, models, poses, scores and unknowns as one
+// thread (a mug, a box and a bottle on the table: several clusters).
+TEST_F(SceneRecognitionTest, RecognisingClustersSideBySideChangesNoResult) {
+  const TableFrame frame;
+  Scene scene;
+  scene.objects.push_back(TableTop(frame));
+  scene.objects.push_back({MakeObject(ObjectClass::kMug, 0), frame.Pose(0.08, 0.03, 0.7), 0.8, {}});
+  scene.objects.push_back({MakeObject(ObjectClass::kBox, 0), frame.Pose(-0.1, -0.04, 0.3), 0.8, {}});
+  scene.objects.push_back({MakeObject(ObjectClass::kBottle, 0), frame.Pose(0.02, 0.12, 1.9), 0.8, {}});
+  const PointCloud cloud = ScanScene(scene);
+  SceneRecognitionOptions one_thread;
+  SceneRecognitionOptions two_threads;
+  two_threads.recognition.threads = 2;
+  const SceneRecogniser recogniser(*db_);
+  const SceneRecognitionResult expected = recogniser.Recognise(cloud, one_thread);
+  ASSERT_GE(expected.segmentation.clusters.size(), 2u) << SceneBriefReport(expected);
+  ASSERT_GE(expected.objects.size(), 2u) << SceneBriefReport(expected);
+  const SceneRecognitionResult result = SceneRecogniser(*db_).Recognise(cloud, two_threads);
+  EXPECT_EQ(result.hypotheses, expected.hypotheses);
+  ASSERT_EQ(result.objects.size(), expected.objects.size()) << SceneBriefReport(result);
+  for (size_t i = 0; i < result.objects.size(); ++i) {
+    const Suggestion& a = result.objects[i].best();
+    const Suggestion& b = expected.objects[i].best();
+    EXPECT_EQ(a.model_name, b.model_name);
+    EXPECT_EQ(a.score, b.score);
+    EXPECT_EQ(result.objects[i].indices, expected.objects[i].indices);
+    EXPECT_LT((a.cam_from_model.translation - b.cam_from_model.translation).norm(), 1e-12);
+    EXPECT_LT((a.cam_from_model.rotation - b.cam_from_model.rotation).norm(), 1e-12);
+  }
+  ASSERT_EQ(result.unknown.size(), expected.unknown.size());
+  for (size_t i = 0; i < result.unknown.size(); ++i) {
+    EXPECT_EQ(result.unknown[i].indices, expected.unknown[i].indices);
+  }
+}
+
 TEST_F(SceneRecognitionTest, EmptyTableAndNoPlaneAreEmptyResults) {
   const TableFrame frame;
   Scene table;

@@ -53,12 +53,11 @@ std::vector<RankedView> SeparatedViews(const Database& db, std::vector<RankedVie
   return chosen;
 }
 
-// Runs job(0) … job(count − 1) on `threads` threads (the calling one and threads − 1
-// more; all on the calling thread when threads ≤ 1), each job once, handed out one at a
-// time (the jobs' costs differ). When no more threads can be started, the started ones and
-// the caller share the jobs. The first exception a job throws is rethrown here after
-// every thread has stopped. (decoder/chunk_workers.h splits pixel chunks into fixed
-// contiguous shares instead: equal chunks, per-worker workspaces.)
+}  // namespace
+
+// (stages.h) Jobs handed out one at a time to whichever thread is free. (decoder/
+// chunk_workers.h splits pixel chunks into fixed contiguous shares instead: equal chunks,
+// per-worker workspaces.)
 void RunJobs(int threads, size_t count, const std::function<void(size_t)>& job) {
   const size_t workers_wanted = std::min<size_t>(std::max(1, threads), count);
   if (workers_wanted <= 1) {
@@ -87,6 +86,8 @@ void RunJobs(int threads, size_t count, const std::function<void(size_t)>& job) 
     if (error) std::rethrow_exception(error);
   }
 }
+
+namespace {
 
 // Roll hypotheses of one view and a short ICP from each on a prefix of its cloud; the
 // best-scoring hypothesis, or nothing when the view gave no hypothesis.
