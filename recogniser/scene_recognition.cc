@@ -21,6 +21,7 @@
 
 #include "core/convex_hull.h"
 #include "core/error.h"
+#include "core/run_jobs.h"
 #include "core/stopwatch.h"
 #include "recogniser/features.h"
 #include "recogniser/pose.h"
@@ -1544,7 +1545,7 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
   std::vector<HypothesisEvidence> evidence = VerifyHypotheses(
       ctx.scene.points, ctx.cloud, scene_hypotheses, options.verification,
       [&plane, cut](const Eigen::Vector3f& p) { return plane.found && plane.Height(p) < cut; },
-      &pool->verification);
+      &pool->verification, options.recognition.threads);
   pool->verify_ms += watch.WallMs();
   return evidence;
 }

@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
 #include <limits>
 
 #include "core/error.h"
+#include "core/run_jobs.h"
 #include "recogniser/pose.h"
 
 namespace sope {
@@ -388,7 +390,8 @@ VerificationCache::~VerificationCache() = default;
 std::vector<HypothesisEvidence> VerifyHypotheses(
     const PointCloud& scene, const PointCloud& observed,
     const std::vector<SceneHypothesis>& hypotheses, const SceneVerificationOptions& options,
-    const std::function<bool(const Eigen::Vector3f&)>& ignore, VerificationCache* cache) {
+    const std::function<bool(const Eigen::Vector3f&)>& ignore, VerificationCache* cache,
+    int threads) {
   options.Check();
   VerificationCache local;
   VerificationCache::Impl& kept = cache ? *cache->impl : *local.impl;
@@ -396,14 +399,25 @@ std::vector<HypothesisEvidence> VerifyHypotheses(
   SOPE_CHECK(kept.evidence.size() <= hypotheses.size(),
              "scene verification: the cache holds {} hypotheses, the call only {}",
              kept.evidence.size(), hypotheses.size());
-  for (size_t h = kept.evidence.size(); h < hypotheses.size(); ++h) {
-    const SceneHypothesis& hypothesis = hypotheses[h];
-    SOPE_CHECK(hypothesis.model_cloud != nullptr && hypothesis.model_cloud->HasNormals(),
+  const size_t first_new = kept.evidence.size();
+  for (size_t h = first_new; h < hypotheses.size(); ++h) {
+    SOPE_CHECK(hypotheses[h].model_cloud != nullptr && hypotheses[h].model_cloud->HasNormals(),
                "scene verification: hypothesis {} has no model cloud with normals", h);
-    kept.levels.emplace_back();
-    kept.evidence.push_back(
-        EvaluateHypothesis(scene, hypothesis, *kept.depth, options, ignore, &kept.levels.back()));
   }
+  // Each new hypothesis's own evidence, independent of the others (on `threads` threads),
+  // kept in order once all are done.
+  const size_t count = hypotheses.size() - first_new;
+  std::vector<HypothesisEvidence> evidence(count);
+  std::vector<LevelExplanations> new_levels(count);
+  const DepthGrid& depth = *kept.depth;
+  RunJobs(threads, count, [&](size_t k) {
+    evidence[k] = EvaluateHypothesis(scene, hypotheses[first_new + k], depth, options, ignore,
+                                     &new_levels[k]);
+  });
+  kept.evidence.insert(kept.evidence.end(), std::make_move_iterator(evidence.begin()),
+                       std::make_move_iterator(evidence.end()));
+  kept.levels.insert(kept.levels.end(), std::make_move_iterator(new_levels.begin()),
+                     std::make_move_iterator(new_levels.end()));
   const std::vector<LevelExplanations>& levels = kept.levels;
   std::vector<HypothesisEvidence> out = kept.evidence;
   std::vector<uint8_t> taken(scene.size(), 0), done(hypotheses.size(), 0);

@@ -133,6 +133,8 @@ struct HypothesisEvidence {
 // computed — the free-space depth grid and each hypothesis's own evidence — is reused by
 // the next call, whose first hypotheses must then be the previous call's, unchanged (new
 // ones appended). The selection is always made afresh. Results are the same as without.
+// `threads`: the new hypotheses' own evidence is computed on this many threads (each
+// hypothesis alone; the same results for any count).
 class VerificationCache {
  public:
   VerificationCache();
@@ -147,6 +149,6 @@ std::vector<HypothesisEvidence> VerifyHypotheses(
     const PointCloud& scene, const PointCloud& observed,
     const std::vector<SceneHypothesis>& hypotheses, const SceneVerificationOptions& options = {},
     const std::function<bool(const Eigen::Vector3f&)>& ignore = {},
-    VerificationCache* cache = nullptr);
+    VerificationCache* cache = nullptr, int threads = 1);
 
 }  // namespace sope

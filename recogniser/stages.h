@@ -18,7 +18,6 @@
 #pragma once
 
 #include <atomic>
-#include <functional>
 #include <mutex>
 #include <string>
 #include <unordered_map>
@@ -36,13 +35,6 @@
 #include "recogniser/view_description.h"
 
 namespace sope {
-
-// Runs job(0) … job(count − 1) on `threads` threads (the calling one and threads − 1
-// more; all on the calling thread when threads ≤ 1), each job once, handed out one at a
-// time (the jobs' costs differ). When no more threads can be started, the started ones and
-// the caller share the jobs. The first exception a job throws is rethrown here after
-// every thread has stopped. The pose stages' parallel loops and the scene recogniser's.
-void RunJobs(int threads, size_t count, const std::function<void(size_t)>& job);
 
 // The view of `model_index` whose camera direction (from the model centre) is closest to
 // that of the pose `canonical_from_model` (the canonical frame shares the camera centre;
