@@ -837,7 +837,10 @@ bool AddRolledOf(const SceneContext& ctx, const RecognitionResult& recognition, 
     source.recognition = recognition;
     std::iter_swap(source.recognition.suggestions.begin(),
                    source.recognition.suggestions.begin() + (s - recognition.suggestions.begin()));
-    for (int k = 1; k < options.roll_steps; ++k) {
+    // The turns are independent: refined on recognition.threads threads, added in order.
+    std::vector<std::optional<Hypothesis>> turned(options.roll_steps - 1);
+    RunJobs(options.recognition.threads, turned.size(), [&](size_t j) {
+      const int k = static_cast<int>(j) + 1;
       const Eigen::Matrix3d turn =
           Eigen::AngleAxisd(2.0 * M_PI * k / options.roll_steps, axis.direction).toRotationMatrix();
       const Rigid3d model_turn(turn, axis.point - turn * axis.point);
@@ -848,11 +851,15 @@ bool AddRolledOf(const SceneContext& ctx, const RecognitionResult& recognition, 
                           canonical_from_cam * s->cam_from_model * model_turn, &rolled)
               .canonical_from_model;
       ScoreOnCluster(ctx, *query, canonical_from_model, &rolled);
-      if (on_table && !PutOnTable(ctx, &rolled)) continue;
+      if (on_table && !PutOnTable(ctx, &rolled)) return;
+      turned[j] = std::move(rolled);
+    });
+    for (size_t j = 0; j < turned.size(); ++j) {
+      if (!turned[j]) continue;
       spdlog::debug("cluster {}: {} turned {}° about its axis, score {:.3f}", cluster,
-                    s->model_name, 360 * k / options.roll_steps,
-                    rolled.recognition.suggestions[0].score);
-      pool->hypotheses.push_back(std::move(rolled));
+                    s->model_name, 360 * static_cast<int>(j + 1) / options.roll_steps,
+                    turned[j]->recognition.suggestions[0].score);
+      pool->hypotheses.push_back(std::move(*turned[j]));
       added = true;
     }
   }
