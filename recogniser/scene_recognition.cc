@@ -278,6 +278,31 @@ RecognitionResult RecogniseCluster(const SceneContext& ctx, const PointCloud& po
   return recognition;
 }
 
+// RecogniseCluster of each of `clouds`, in order: side by side on recognition.threads
+// threads when there are several (each recognition on one thread: a recognition's answer
+// is the same for any thread count), else on the calling thread with them. The wall time
+// goes to pool->recognise_ms.
+std::vector<RecognitionResult> RecogniseSideBySide(const SceneContext& ctx,
+                                                   const std::vector<const PointCloud*>& clouds,
+                                                   HypothesisPool* pool) {
+  const Stopwatch watch;
+  std::vector<RecognitionResult> results(clouds.size());
+  const int threads = ctx.options.recognition.threads;
+  if (threads > 1 && clouds.size() > 1) {
+    SceneRecognitionOptions one_thread = ctx.options;
+    one_thread.recognition.threads = 1;
+    const SceneContext ctx_one_thread{ctx.scene_recogniser, ctx.recogniser, ctx.database,
+                                      ctx.cloud,            one_thread,     ctx.plane,
+                                      ctx.clusters,         ctx.scene,      ctx.max_diameter};
+    RunJobs(threads, clouds.size(),
+            [&](size_t k) { results[k] = RecogniseCluster(ctx_one_thread, *clouds[k]); });
+  } else {
+    for (size_t k = 0; k < clouds.size(); ++k) results[k] = RecogniseCluster(ctx, *clouds[k]);
+  }
+  pool->recognise_ms += watch.WallMs();
+  return results;
+}
+
 // The database models of class `class_index`, by index (an instance database has one per
 // class: the object on the table is one of them, of its size).
 std::vector<int> ModelsOfClass(const Database& database, int class_index) {
@@ -1158,18 +1183,36 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   for (const auto& pair : UnseenGapLabels(ctx, label, num_clusters, num_labels)) {
     pairs.push_back(pair);
   }
-  bool added = false;
+  // The pairs to join and their points; then their recognitions (side by side with several
+  // threads); then each pair's hypotheses and looks, in pair order.
+  struct Join {
+    bool partner_is_cluster = false;
+    int cluster_a = 0, cluster_b = 0, owner = 0;
+    PointCloud joined;
+  };
+  std::vector<Join> joins;
   for (const auto& [a, b] : pairs) {
     if (a >= num_clusters) continue;  // two objects: nothing unexplained to join
     const int partner = b < num_clusters ? b : num_clusters + accepted[b - num_clusters];
     if (!pool->joined.emplace(a, partner).second) continue;  // joined in an earlier round
-    PointCloud joined;
-    const int cluster_a = points_of(a, &joined);
-    const size_t size_a = joined.size();
-    const int cluster_b = points_of(b, &joined);
+    Join join;
+    join.partner_is_cluster = b < num_clusters;
+    join.cluster_a = points_of(a, &join.joined);
+    const size_t size_a = join.joined.size();
+    join.cluster_b = points_of(b, &join.joined);
+    join.owner = size_a >= join.joined.size() - size_a ? join.cluster_a : join.cluster_b;
+    joins.push_back(std::move(join));
+  }
+  std::vector<const PointCloud*> clouds;
+  for (const Join& join : joins) clouds.push_back(&join.joined);
+  const std::vector<RecognitionResult> recognised = RecogniseSideBySide(ctx, clouds, pool);
+  bool added = false;
+  for (size_t k = 0; k < joins.size(); ++k) {
+    const PointCloud& joined = joins[k].joined;
+    const int owner = joins[k].owner, cluster_a = joins[k].cluster_a, cluster_b = joins[k].cluster_b;
     const size_t before = pool->hypotheses.size();
-    const int owner = size_a >= joined.size() - size_a ? cluster_a : cluster_b;
-    const RecognitionResult recognition = AddClusterHypotheses(ctx, owner, joined, pool);
+    const RecognitionResult recognition =
+        AddClusterHypotheses(ctx, owner, joined, pool, &recognised[k]);
     LazyPoseQuery joined_query(ctx, joined);
     // A handle the shadow cut off the body: turned about the body's axis and refined on
     // both parts, the model can put it where it was seen.
@@ -1178,11 +1221,12 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     }
     // An unseen instance two unexplained clusters make up: the size looks of the class
     // ranked first, sized to the joined points (SceneRecognitionOptions::join_size_looks).
-    if (options.join_size_looks && b < num_clusters) {
+    if (options.join_size_looks && joins[k].partner_is_cluster) {
       AddSizeLooksOn(ctx, recognition, owner, joined, joined_query.Getter(), pool);
     }
     spdlog::debug("{} {} and cluster {} joined ({} points): {} hypotheses",
-                  b < num_clusters ? "cluster" : "the object of cluster", cluster_b, cluster_a,
+                  joins[k].partner_is_cluster ? "cluster" : "the object of cluster", cluster_b,
+                  cluster_a,
                   joined.size(), pool->hypotheses.size() - before);
     added |= pool->hypotheses.size() > before;
   }
@@ -1191,13 +1235,14 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
 
 // Clusters `to_split` (each once) split along their concave seams: each of the
 // split_segments largest segments (of at least min_cluster_points points, and not the
-// whole cluster) is recognised alone and adds its hypotheses. True when that added
-// hypotheses.
+// whole cluster) is recognised alone and adds its hypotheses (in cluster and segment
+// order). True when that added hypotheses.
 bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_split,
                         HypothesisPool* pool) {
   const SceneRecognitionOptions& options = ctx.options;
   if (options.split_segments <= 0) return false;
   bool added = false;
+  std::vector<std::pair<int, PointCloud>> parts;  // (cluster, the segment's points)
   for (size_t c = 0; c < ctx.clusters.size(); ++c) {
     if (!to_split[c] || pool->split_tried[c]) continue;
     pool->split_tried[c] = 1;
@@ -1212,18 +1257,28 @@ bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_spl
       const std::vector<int>& segment = segments[k];
       if (static_cast<int>(segment.size()) < options.segmentation.min_cluster_points) break;
       if (segment.size() > 0.9 * points.size()) continue;  // the cluster was tried whole
-      PointCloud part;
+      parts.emplace_back();
+      parts.back().first = static_cast<int>(c);
+      PointCloud& part = parts.back().second;
       part.points.reserve(segment.size());
       for (const int i : segment) part.points.push_back(points.points[i]);
-      const size_t before = pool->hypotheses.size();
-      const RecognitionResult recognition =
-          AddClusterHypotheses(ctx, static_cast<int>(c), part, pool);
-      if (ctx.options.part_size_looks) {
-        LazyPoseQuery part_query(ctx, part);
-        AddSizeLooksOn(ctx, recognition, static_cast<int>(c), part, part_query.Getter(), pool);
-      }
-      added |= pool->hypotheses.size() > before;
     }
+  }
+  // The parts' recognitions (side by side with several threads); then each part's
+  // hypotheses and size looks, in order.
+  std::vector<const PointCloud*> clouds;
+  for (const auto& [cluster, part] : parts) clouds.push_back(&part);
+  const std::vector<RecognitionResult> recognised = RecogniseSideBySide(ctx, clouds, pool);
+  for (size_t k = 0; k < parts.size(); ++k) {
+    const auto& [cluster, part] = parts[k];
+    const size_t before = pool->hypotheses.size();
+    const RecognitionResult recognition =
+        AddClusterHypotheses(ctx, cluster, part, pool, &recognised[k]);
+    if (ctx.options.part_size_looks) {
+      LazyPoseQuery part_query(ctx, part);
+      AddSizeLooksOn(ctx, recognition, cluster, part, part_query.Getter(), pool);
+    }
+    added |= pool->hypotheses.size() > before;
   }
   return added;
 }
@@ -1973,29 +2028,13 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
   pool.pose_query_built.assign(clusters.size(), 0);
   pool.split_tried.assign(clusters.size(), 0);
   {
-    // The first looks, one recognition per cluster: independent of each other, so with
-    // several threads (recognition.threads) the clusters are recognised side by side, each
-    // on one thread (a recognition's answer is the same for any thread count), and their
-    // hypotheses added in cluster order as before. One cluster keeps the threads for its
-    // own pose stages.
-    const int threads = options.recognition.threads;
-    std::vector<RecognitionResult> first_looks;
-    if (threads > 1 && clusters.size() > 1) {
-      const Stopwatch watch;
-      SceneRecognitionOptions one_thread = options;
-      one_thread.recognition.threads = 1;
-      const SceneContext ctx_one_thread{*this,   recogniser_,        database_,
-                                        cloud,   one_thread,         result.segmentation.plane,
-                                        clusters, scene,             max_diameter};
-      first_looks.resize(clusters.size());
-      RunJobs(threads, clusters.size(), [&](size_t c) {
-        first_looks[c] = RecogniseCluster(ctx_one_thread, clusters[c].cloud);
-      });
-      pool.recognise_ms += watch.WallMs();
-    }
+    // The first looks, one recognition per cluster, independent of each other (side by
+    // side with several threads), their hypotheses added in cluster order.
+    std::vector<const PointCloud*> clouds;
+    for (const ObjectCluster& c : clusters) clouds.push_back(&c.cloud);
+    const std::vector<RecognitionResult> first_looks = RecogniseSideBySide(ctx, clouds, &pool);
     for (size_t c = 0; c < clusters.size(); ++c) {
-      AddClusterHypotheses(ctx, static_cast<int>(c), clusters[c].cloud, &pool,
-                           first_looks.empty() ? nullptr : &first_looks[c]);
+      AddClusterHypotheses(ctx, static_cast<int>(c), clusters[c].cloud, &pool, &first_looks[c]);
     }
   }
   std::vector<HypothesisEvidence> evidence = VerifyPool(ctx, &pool);
