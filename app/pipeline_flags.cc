@@ -87,7 +87,8 @@ void DecoderFlags::Add(CLI::App& app) {
                "pre-distorted with --pattern-gamma)");
   app.add_option("--threads", options.num_threads,
                  "Threads for decoding (and triangulating, in commands that triangulate; and "
-                 "the pose screening and a table's clusters, in scan-and-recognise)")->capture_default_str();
+                 "the pose screening and a table's clusters, in scan-and-recognise)")
+      ->capture_default_str();
 }
 
 DecoderOptions DecoderFlags::ToOptions() const {

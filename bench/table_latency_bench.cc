@@ -279,7 +279,8 @@ void BM_Table_AllObjects(benchmark::State& state) {
         Quantile(table_totals, 0.5) / Quantile(whole_image_cpu, 0.5);
   }
   if (!live_cpu.empty()) {
-    state.counters["cpu_ratio_live_vs_this"] = Quantile(live_cpu, 0.5) / Quantile(table_totals, 0.5);
+    state.counters["cpu_ratio_live_vs_this"] =
+        Quantile(live_cpu, 0.5) / Quantile(table_totals, 0.5);
   }
   if (!first_look_cpu.empty()) {
     state.counters["cpu_ratio_vs_first_look_only"] =

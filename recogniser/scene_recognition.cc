@@ -1209,7 +1209,8 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   bool added = false;
   for (size_t k = 0; k < joins.size(); ++k) {
     const PointCloud& joined = joins[k].joined;
-    const int owner = joins[k].owner, cluster_a = joins[k].cluster_a, cluster_b = joins[k].cluster_b;
+    const int owner = joins[k].owner;
+    const int cluster_a = joins[k].cluster_a, cluster_b = joins[k].cluster_b;
     const size_t before = pool->hypotheses.size();
     const RecognitionResult recognition =
         AddClusterHypotheses(ctx, owner, joined, pool, &recognised[k]);
