@@ -670,17 +670,22 @@ TEST_F(SceneRecognitionTest, ModelsRestOnTheirBase) {
   }
 }
 
+// A mug and a box standing apart on the table (the threads tests' scene).
+Scene MugAndBoxOnTable(const TableFrame& frame) {
+  Scene scene;
+  scene.objects.push_back(TableTop(frame));
+  scene.objects.push_back({MakeObject(ObjectClass::kMug, 0), frame.Pose(0.08, 0.03, 0.7), 0.8, {}});
+  scene.objects.push_back({MakeObject(ObjectClass::kBox, 0), frame.Pose(-0.1, -0.04, 0.3), 0.8, {}});
+  return scene;
+}
+
 // SceneRecogniser::WarmUp on another thread while a scene is recognised (as the
 // scan-and-recognise loop warms up during its first capture): the same objects, models and
 // poses as a recogniser whose caches the recognition built itself, and afterwards every
 // model's caches built, equal to those built cold.
 TEST_F(SceneRecognitionTest, WarmingUpOnAnotherThreadChangesNoResult) {
   const TableFrame frame;
-  Scene scene;
-  scene.objects.push_back(TableTop(frame));
-  scene.objects.push_back({MakeObject(ObjectClass::kMug, 0), frame.Pose(0.08, 0.03, 0.7), 0.8, {}});
-  scene.objects.push_back({MakeObject(ObjectClass::kBox, 0), frame.Pose(-0.1, -0.04, 0.3), 0.8, {}});
-  const PointCloud cloud = ScanScene(scene);
+  const PointCloud cloud = ScanScene(MugAndBoxOnTable(frame));
   const SceneRecognitionOptions options;
   const SceneRecogniser cold(*db_);
   const SceneRecognitionResult expected = cold.Recognise(cloud, options);
@@ -709,16 +714,16 @@ TEST_F(SceneRecognitionTest, WarmingUpOnAnotherThreadChangesNoResult) {
   }
 }
 
-// With two threads (recognition.threads) the clusters' first looks run side by side, each
-// on one thread: the same hypotheses, objects, models, poses, scores and unknowns as one
-// thread (a mug, a box and a bottle on the table: several clusters).
+// With two threads (recognition.threads) the independent work of a scene runs side by side
+// (the clusters' first looks, the hypotheses' own verification evidence, the rolled turns,
+// joins and splits), each piece on one thread and added in order: the same hypotheses,
+// objects, models, poses, scores and unknowns as one thread (a mug, a box and a bottle on
+// the table: several clusters).
 TEST_F(SceneRecognitionTest, RecognisingClustersSideBySideChangesNoResult) {
   const TableFrame frame;
-  Scene scene;
-  scene.objects.push_back(TableTop(frame));
-  scene.objects.push_back({MakeObject(ObjectClass::kMug, 0), frame.Pose(0.08, 0.03, 0.7), 0.8, {}});
-  scene.objects.push_back({MakeObject(ObjectClass::kBox, 0), frame.Pose(-0.1, -0.04, 0.3), 0.8, {}});
-  scene.objects.push_back({MakeObject(ObjectClass::kBottle, 0), frame.Pose(0.02, 0.12, 1.9), 0.8, {}});
+  Scene scene = MugAndBoxOnTable(frame);
+  scene.objects.push_back(
+      {MakeObject(ObjectClass::kBottle, 0), frame.Pose(0.02, 0.12, 1.9), 0.8, {}});
   const PointCloud cloud = ScanScene(scene);
   SceneRecognitionOptions one_thread;
   SceneRecognitionOptions two_threads;
