@@ -447,18 +447,12 @@ bool PutOnTable(const SceneContext& ctx, Hypothesis* h) {
   return true;
 }
 
-// Recognises `points` of `cluster` (or takes `recognised`, their recognition already
-// made) and adds up to hypotheses_per_cluster hypotheses (each posed suggestion scoring at
-// least min_hypothesis_score, put down on the table, and its flipped twin) to the pool.
-// Returns the recognition.
-RecognitionResult AddClusterHypotheses(const SceneContext& ctx, int cluster,
-                                       const PointCloud& points, HypothesisPool* pool,
-                                       const RecognitionResult* recognised = nullptr) {
+// From `recognition` (RecogniseSideBySide) of points of `cluster`, adds up to
+// hypotheses_per_cluster hypotheses (each posed suggestion scoring at least
+// min_hypothesis_score, put down on the table, and its flipped twin) to the pool.
+void AddClusterHypotheses(const SceneContext& ctx, int cluster,
+                          const RecognitionResult& recognition, HypothesisPool* pool) {
   const SceneRecognitionOptions& options = ctx.options;
-  const Stopwatch watch;
-  const RecognitionResult recognition =
-      recognised != nullptr ? *recognised : RecogniseCluster(ctx, points);
-  if (recognised == nullptr) pool->recognise_ms += watch.WallMs();
   if (pool->cluster_results[cluster].empty()) pool->cluster_results[cluster] = recognition;
   const bool on_table = options.snap_to_plane && ctx.plane.found;
   int taken = 0;
@@ -498,7 +492,6 @@ RecognitionResult AddClusterHypotheses(const SceneContext& ctx, int cluster,
     pool->hypotheses.push_back(std::move(h));
     ++taken;
   }
-  return recognition;
 }
 
 // The cluster's points as the recogniser's pose stages see them (pre-processed with the
@@ -725,10 +718,11 @@ class SightGrid {
 // between their nearest points (on a grid of 3 scene leaves) at most join_max_seen of the
 // samples have the cloud's nearest point in their line of sight more than a scene leaf
 // behind them — samples whose line of sight meets a point of the two parts themselves not
-// counted, and fewer than three others counting as unseen. Two objects apart on the table show the table through the gap; the parts of
-// one object that a shadow or a part too thin to scan (a wine glass's stem, a bottle's
-// shoulder at a grazing angle) cut apart show nothing there, or the object itself (a
-// lying wine glass: the line between its bowl and its foot passes over its stem).
+// counted, and fewer than three others counting as unseen. Two objects apart on the table
+// show the table through the gap; the parts of one object that a shadow or a part too thin
+// to scan (a wine glass's stem, a bottle's shoulder at a grazing angle) cut apart show
+// nothing there, or the object itself (a lying wine glass: the line between its bowl and
+// its foot passes over its stem).
 std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
                                                  const std::vector<int>& label,
                                                  int num_clusters, int num_labels) {
@@ -1212,8 +1206,8 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     const int owner = joins[k].owner;
     const int cluster_a = joins[k].cluster_a, cluster_b = joins[k].cluster_b;
     const size_t before = pool->hypotheses.size();
-    const RecognitionResult recognition =
-        AddClusterHypotheses(ctx, owner, joined, pool, &recognised[k]);
+    const RecognitionResult& recognition = recognised[k];
+    AddClusterHypotheses(ctx, owner, recognition, pool);
     LazyPoseQuery joined_query(ctx, joined);
     // A handle the shadow cut off the body: turned about the body's axis and refined on
     // both parts, the model can put it where it was seen.
@@ -1227,8 +1221,7 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     }
     spdlog::debug("{} {} and cluster {} joined ({} points): {} hypotheses",
                   joins[k].partner_is_cluster ? "cluster" : "the object of cluster", cluster_b,
-                  cluster_a,
-                  joined.size(), pool->hypotheses.size() - before);
+                  cluster_a, joined.size(), pool->hypotheses.size() - before);
     added |= pool->hypotheses.size() > before;
   }
   return added;
@@ -1273,8 +1266,8 @@ bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_spl
   for (size_t k = 0; k < parts.size(); ++k) {
     const auto& [cluster, part] = parts[k];
     const size_t before = pool->hypotheses.size();
-    const RecognitionResult recognition =
-        AddClusterHypotheses(ctx, cluster, part, pool, &recognised[k]);
+    const RecognitionResult& recognition = recognised[k];
+    AddClusterHypotheses(ctx, cluster, recognition, pool);
     if (ctx.options.part_size_looks) {
       LazyPoseQuery part_query(ctx, part);
       AddSizeLooksOn(ctx, recognition, cluster, part, part_query.Getter(), pool);
@@ -1650,7 +1643,7 @@ bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>&
   if (options.remainder_fraction <= 0) return false;
   const std::vector<ObjectCluster>& clusters = ctx.clusters;
   const ThinnedScene& scene = ctx.scene;
-  bool added = false;
+  std::vector<std::pair<int, PointCloud>> remainders;  // (cluster, its unexplained points)
   for (size_t c = 0; c < clusters.size(); ++c) {
     // No accepted hypothesis: the whole cluster was tried.
     if (!has_accepted[c] || pool->remainder_tried[c]) continue;
@@ -1661,13 +1654,22 @@ bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>&
     }
     if (static_cast<int>(remainder.size()) < options.segmentation.min_cluster_points) continue;
     pool->remainder_tried[c] = 1;
+    remainders.emplace_back(static_cast<int>(c), std::move(remainder));
+  }
+  // Their recognitions (side by side with several threads); then each one's hypotheses and
+  // size looks, in cluster order.
+  std::vector<const PointCloud*> clouds;
+  for (const auto& [c, remainder] : remainders) clouds.push_back(&remainder);
+  const std::vector<RecognitionResult> recognised = RecogniseSideBySide(ctx, clouds, pool);
+  bool added = false;
+  for (size_t k = 0; k < remainders.size(); ++k) {
+    const auto& [c, remainder] = remainders[k];
     const size_t before = pool->hypotheses.size();
-    const RecognitionResult recognition =
-        AddClusterHypotheses(ctx, static_cast<int>(c), remainder, pool);
+    const RecognitionResult& recognition = recognised[k];
+    AddClusterHypotheses(ctx, c, recognition, pool);
     if (options.part_size_looks) {
       LazyPoseQuery remainder_query(ctx, remainder);
-      AddSizeLooksOn(ctx, recognition, static_cast<int>(c), remainder, remainder_query.Getter(),
-                     pool);
+      AddSizeLooksOn(ctx, recognition, c, remainder, remainder_query.Getter(), pool);
     }
     spdlog::debug("cluster {}: {:.0f}% unexplained, its remainder of {} points gave {} hypotheses",
                   c, 100 * left[c], remainder.size(), pool->hypotheses.size() - before);
@@ -2035,7 +2037,7 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     for (const ObjectCluster& c : clusters) clouds.push_back(&c.cloud);
     const std::vector<RecognitionResult> first_looks = RecogniseSideBySide(ctx, clouds, &pool);
     for (size_t c = 0; c < clusters.size(); ++c) {
-      AddClusterHypotheses(ctx, static_cast<int>(c), clusters[c].cloud, &pool, &first_looks[c]);
+      AddClusterHypotheses(ctx, static_cast<int>(c), first_looks[c], &pool);
     }
   }
   std::vector<HypothesisEvidence> evidence = VerifyPool(ctx, &pool);
