@@ -240,6 +240,19 @@ struct Triangulator::RowScratch {
   alignas(64) double chord[4 * kChunk];
   alignas(64) uint8_t inside[kChunk], valid[kChunk], good[kChunk], done[kChunk],
       to_exact[kChunk];
+  // Ray–plane: per candidate the projector row (column) predicted from the rows above (NaN:
+  // none) and the one its point landed on; the chunk's candidates the prediction failed,
+  // compacted (index into the chunk; their inputs and results).
+  alignas(64) double predicted[kChunk], landed_row[kChunk], redo_landed[kChunk];
+  alignas(64) int32_t redo[kChunk];
+  alignas(64) float redo_ray_x[kChunk], redo_ray_y[kChunk], redo_coded[kChunk];
+  alignas(64) float redo_x[kChunk], redo_y[kChunk], redo_z[kChunk];
+  alignas(64) uint8_t on_grid[kChunk], redo_ok[kChunk], redo_exact[kChunk];
+  // Ray–plane, per camera column: the projector row (column) the accepted points of the
+  // last two camera rows landed on (NaN: none), and those of the row being made;
+  // history_y the camera row of landed_1.
+  std::vector<float> landed_1, landed_2, landed_now;
+  int history_y = std::numeric_limits<int>::min() / 2;
 
   // Room for a row of `width` candidates (and the slack of the row functions' 16-lane steps).
   void Resize(size_t width) {
@@ -252,6 +265,41 @@ struct Triangulator::RowScratch {
     for (std::vector<uint8_t>* v : {&ok, &exact}) v->resize(n);
     xs.resize(n);
   }
+
+  // Starts camera row y (`width` columns): the last two rows' landings become the history
+  // (none unless they were rows y − 1 and y − 2); the new row's are NaN until recorded.
+  void StartHistoryRow(int y, int width) {
+    constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+    if (landed_now.size() != static_cast<size_t>(width)) {
+      for (std::vector<float>* v : {&landed_1, &landed_2, &landed_now}) v->assign(width, kNaN);
+    } else if (history_y == y - 1) {
+      std::swap(landed_2, landed_1);    // row y − 2
+      std::swap(landed_1, landed_now);  // row y − 1; now the oldest, cleared below
+    } else {
+      std::fill(landed_1.begin(), landed_1.end(), kNaN);
+      std::fill(landed_2.begin(), landed_2.end(), kNaN);
+    }
+    std::fill(landed_now.begin(), landed_now.end(), kNaN);
+    history_y = y;
+  }
+  // The candidates' predicted rows (columns): the landings of the same camera column one
+  // and two rows above, extrapolated (NaN unless both are known).
+  void Predict(const int* columns, int n, double* out) const {
+    if (n > 0 && columns[n - 1] - columns[0] == n - 1) {  // consecutive columns (mostly)
+      const float* __restrict l1 = landed_1.data() + columns[0];
+      const float* __restrict l2 = landed_2.data() + columns[0];
+      for (int i = 0; i < n; ++i) {
+        out[i] = 2.0 * static_cast<double>(l1[i]) - static_cast<double>(l2[i]);
+      }
+      return;
+    }
+    const float* l1 = landed_1.data();
+    const float* l2 = landed_2.data();
+    for (int i = 0; i < n; ++i) {
+      const int x = columns[i];
+      out[i] = 2.0 * static_cast<double>(l1[x]) - static_cast<double>(l2[x]);
+    }
+  }
 };
 
 namespace {
@@ -261,6 +309,15 @@ namespace {
 // error is second order in the distance (the plane's curvature times its square): well
 // below 1e-6 m of depth for real lenses (calibration_test).
 constexpr double kRayPlaneMaxRowShiftPx = 1.0;
+// A chord through a predicted row (RayPlaneChunk) is kept when its point lands closer than
+// this to that row: its error, second order in the distance, then stays within 1e-6 m of
+// the exact path's depth even with a wide-angle projector's distortion (calibration_test;
+// at 1 px it reached 4e-6 m there).
+constexpr double kPredictedMaxRowShiftPx = 0.1;
+// Predictions come only from rows of the same band of this many camera rows (the bands'
+// first two rows start from the centre): the rows of a band are one thread's work, so the
+// points do not depend on the thread count.
+constexpr int kPredictionBandRows = 64;
 // Ray–plane steps: the plane at the projector's centre row (column), then at the rows
 // (columns) where the previous step's point lands; the plane tables (interpolated
 // normals) for all but the last, which takes the exact path's chord from the ray grid.
@@ -554,6 +611,65 @@ void TableNormal(int n, const double* __restrict first, const double* __restrict
   }
 }
 
+// The chord step: the plane through the projector rays at (coded, landed[i] ± kHalf)
+// (rows ± kHalf for columns, columns for rows) from the ray grid with its margin, met by
+// the camera rays q (w->q_x …): RayPlaneStep's w->numerator, w->denominator, w->next (the
+// row the point lands on) and w->valid; on_grid[i] whether both rays were on the grid.
+template <bool kColumns, bool kRational>
+void ChordStep(int n, const Pose& pose, const Lens& lens, const Grid& grid,
+               const float* __restrict coded, const double* __restrict landed,
+               Triangulator::RowScratch* w, uint8_t* __restrict on_grid) {
+  constexpr double kHalf = Triangulator::kPlaneHalfSpanPx;
+  double* __restrict look_u = w->look_u;
+  double* __restrict look_v = w->look_v;
+  for (int i = 0; i < n; ++i) {
+    const double u = kColumns ? coded[i] : landed[i], v = kColumns ? landed[i] : coded[i];
+    look_u[i] = (kColumns ? u : u - kHalf) + kHalf;
+    look_v[i] = (kColumns ? v - kHalf : v) + kHalf;
+  }
+  double* __restrict xa = w->chord;
+  double* __restrict ya = w->chord + kChunk;
+  double* __restrict xb = w->chord + 2 * kChunk;
+  double* __restrict yb = w->chord + 3 * kChunk;
+  uint8_t* __restrict inside_a = w->valid;
+  uint8_t* __restrict inside_b = w->inside;
+  Interpolate(grid, n, look_u, look_v, w, xa, ya, inside_a);
+  for (int i = 0; i < n; ++i) {
+    const double u = kColumns ? coded[i] : landed[i], v = kColumns ? landed[i] : coded[i];
+    look_u[i] = (kColumns ? u : u + kHalf) + kHalf;
+    look_v[i] = (kColumns ? v + kHalf : v) + kHalf;
+  }
+  Interpolate(grid, n, look_u, look_v, w, xb, yb, inside_b);
+  double* __restrict n0 = w->out0;
+  double* __restrict n1 = w->out1;
+  double* __restrict n2 = w->out2;
+  for (int i = 0; i < n; ++i) {
+    on_grid[i] = (inside_a[i] != 0) & (inside_b[i] != 0);
+    n0[i] = ya[i] - yb[i];
+    n1[i] = xb[i] - xa[i];
+    n2[i] = xa[i] * yb[i] - ya[i] * xb[i];
+  }
+  RayPlaneStep<kColumns, kRational>(n, pose, lens, w->q_x, w->q_y, w->q_z, n0, n1, n2,
+                                    w->numerator, w->denominator, w->next, w->valid);
+}
+
+// The camera rays in the projector's frame, q = r·d_c, into w->q_x, q_y, q_z.
+void ProjectorFrameRays(int n, const Pose& pose, const float* __restrict ray_x,
+                        const float* __restrict ray_y, Triangulator::RowScratch* w) {
+  double* __restrict qx = w->q_x;
+  double* __restrict qy = w->q_y;
+  double* __restrict qz = w->q_z;
+  const double r00 = pose.r[0], r01 = pose.r[1], r02 = pose.r[2];
+  const double r10 = pose.r[3], r11 = pose.r[4], r12 = pose.r[5];
+  const double r20 = pose.r[6], r21 = pose.r[7], r22 = pose.r[8];
+  for (int i = 0; i < n; ++i) {
+    const double x = ray_x[i], y = ray_y[i];
+    qx[i] = r00 * x + r01 * y + r02;
+    qy[i] = r10 * x + r11 * y + r12;
+    qz[i] = r20 * x + r21 * y + r22;
+  }
+}
+
 // One axis coded (kColumns: x): ray–plane as the exact path's re-linearisation — the plane
 // at the projector's centre row (column) from the plane table, then at the row where that
 // point lands (plane table again, unless it moved < 1e-3 px), then the exact path's chord
@@ -561,17 +677,17 @@ void TableNormal(int n, const double* __restrict first, const double* __restrict
 // tables, and a row still moving ≥ kRayPlaneMaxRowShiftPx after the last step, go to the
 // exact path (exact = 1).
 template <bool kColumns, bool kRational>
-void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes,
-                   const Grid& grid, double min_depth, double max_depth,
-                   const float* __restrict ray_x, const float* __restrict ray_y,
-                   const float* __restrict coded, Triangulator::RowScratch* w,
-                   float* __restrict out_x,
-                   float* __restrict out_y, float* __restrict out_z, uint8_t* __restrict ok,
-                   uint8_t* __restrict exact) {
+void RayPlaneFromCentre(int n, const Pose& pose, const Lens& lens, const Grid& planes,
+                        const Grid& grid, double min_depth, double max_depth,
+                        const float* __restrict ray_x, const float* __restrict ray_y,
+                        const float* __restrict coded, Triangulator::RowScratch* w,
+                        float* __restrict out_x, float* __restrict out_y,
+                        float* __restrict out_z, uint8_t* __restrict ok,
+                        uint8_t* __restrict exact, double* __restrict landed_row) {
   static_assert(kRayPlaneSteps == 3, "three steps below");
-  double* __restrict qx = w->q_x;
-  double* __restrict qy = w->q_y;
-  double* __restrict qz = w->q_z;
+  const double* __restrict qx = w->q_x;
+  const double* __restrict qy = w->q_y;
+  const double* __restrict qz = w->q_z;
   double* __restrict landed = w->landed;
   double* __restrict next = w->next;
   double* __restrict n0 = w->out0;
@@ -582,19 +698,9 @@ void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes
   uint8_t* __restrict good = w->good;
   uint8_t* __restrict done = w->done;
   uint8_t* __restrict to_exact = w->to_exact;
-  {
-    const double r00 = pose.r[0], r01 = pose.r[1], r02 = pose.r[2];
-    const double r10 = pose.r[3], r11 = pose.r[4], r12 = pose.r[5];
-    const double r20 = pose.r[6], r21 = pose.r[7], r22 = pose.r[8];
-    const double start = kColumns ? lens.cy : lens.cx;
-    for (int i = 0; i < n; ++i) {
-      const double x = ray_x[i], y = ray_y[i];
-      qx[i] = r00 * x + r01 * y + r02;
-      qy[i] = r10 * x + r11 * y + r12;
-      qz[i] = r20 * x + r21 * y + r22;
-      landed[i] = start;
-    }
-  }
+  ProjectorFrameRays(n, pose, ray_x, ray_y, w);
+  const double start = kColumns ? lens.cy : lens.cx;
+  for (int i = 0; i < n; ++i) landed[i] = start;
   // Step 1: the plane table at the centre row.
   PlaneTableCoordinates<kColumns>(n, coded, landed, w->look_u, w->look_v);
   Interpolate(planes, n, w->look_u, w->look_v, w, w->chord, w->chord + kChunk, inside);
@@ -626,35 +732,11 @@ void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes
     done[i] = d | (active & v & !moved);
     landed[i] = (active & v & moved) ? next[i] : landed[i];
   }
-  // Step 3: the chord through the row it stopped at, the rays at other ± kHalf.
-  constexpr double kHalf = Triangulator::kPlaneHalfSpanPx;
-  double* __restrict look_u = w->look_u;
-  double* __restrict look_v = w->look_v;
+  // Step 3: the chord through the row it stopped at.
+  ChordStep<kColumns, kRational>(n, pose, lens, grid, coded, landed, w, w->on_grid);
   for (int i = 0; i < n; ++i) {
-    const double u = kColumns ? coded[i] : landed[i], v = kColumns ? landed[i] : coded[i];
-    look_u[i] = (kColumns ? u : u - kHalf) + kHalf;
-    look_v[i] = (kColumns ? v - kHalf : v) + kHalf;
+    to_exact[i] = (to_exact[i] != 0) | ((good[i] != 0) & (w->on_grid[i] == 0));
   }
-  double* __restrict xa = w->chord;
-  double* __restrict ya = w->chord + kChunk;
-  double* __restrict xb = w->chord + 2 * kChunk;
-  double* __restrict yb = w->chord + 3 * kChunk;
-  Interpolate(grid, n, look_u, look_v, w, xa, ya, valid);  // valid: inside for point a
-  for (int i = 0; i < n; ++i) {
-    const double u = kColumns ? coded[i] : landed[i], v = kColumns ? landed[i] : coded[i];
-    look_u[i] = (kColumns ? u : u + kHalf) + kHalf;
-    look_v[i] = (kColumns ? v + kHalf : v) + kHalf;
-  }
-  Interpolate(grid, n, look_u, look_v, w, xb, yb, inside);
-  for (int i = 0; i < n; ++i) {
-    const bool both = (valid[i] != 0) & (inside[i] != 0);
-    to_exact[i] = (to_exact[i] != 0) | ((good[i] != 0) & !both);
-    n0[i] = ya[i] - yb[i];
-    n1[i] = xb[i] - xa[i];
-    n2[i] = xa[i] * yb[i] - ya[i] * xb[i];
-  }
-  RayPlaneStep<kColumns, kRational>(n, pose, lens, qx, qy, qz, n0, n1, n2, w->numerator,
-                                    w->denominator, next, valid);
   const double* __restrict num = w->numerator;
   const double* __restrict den = w->denominator;
   for (int i = 0; i < n; ++i) {
@@ -669,6 +751,90 @@ void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes
     out_z[i] = static_cast<float>(s);
     ok[i] = kept & (s >= min_depth) & (s <= max_depth);
     exact[i] = e | still_moving;
+    landed_row[i] = next[i];
+  }
+}
+
+// One axis coded, with predicted rows (columns): where the rows above give a prediction
+// (`predicted`, NaN: none), the chord through the predicted row at once — kept when its point
+// lands within kPredictedMaxRowShiftPx of it (the chord's error is second order in that
+// distance) — and RayPlaneFromCentre for the others. landed_row: the row each point landed
+// on.
+template <bool kColumns, bool kRational>
+void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes,
+                   const Grid& grid, double min_depth, double max_depth,
+                   const float* __restrict ray_x, const float* __restrict ray_y,
+                   const float* __restrict coded, const double* __restrict predicted,
+                   Triangulator::RowScratch* w, float* __restrict out_x,
+                   float* __restrict out_y, float* __restrict out_z, uint8_t* __restrict ok,
+                   uint8_t* __restrict exact, double* __restrict landed_row) {
+  double* __restrict landed = w->landed;
+  const double fallback = kColumns ? lens.cy : lens.cx;
+  int predictions = 0;
+  for (int i = 0; i < n; ++i) {
+    const bool known = std::abs(predicted[i]) <= std::numeric_limits<double>::max();
+    landed[i] = known ? predicted[i] : fallback;
+    predictions += known;
+  }
+  int32_t* __restrict redo = w->redo;
+  int redo_count = 0;
+  if (predictions > 0) {
+    ProjectorFrameRays(n, pose, ray_x, ray_y, w);
+    ChordStep<kColumns, kRational>(n, pose, lens, grid, coded, landed, w, w->on_grid);
+    const double* __restrict num = w->numerator;
+    const double* __restrict den = w->denominator;
+    const double* __restrict next = w->next;
+    const uint8_t* __restrict valid = w->valid;
+    const uint8_t* __restrict on_grid = w->on_grid;
+    uint8_t* __restrict fine = w->good;
+    for (int i = 0; i < n; ++i) {
+      const bool known = std::abs(predicted[i]) <= std::numeric_limits<double>::max();
+      const bool f = known & (valid[i] != 0) & (on_grid[i] != 0) &
+                     (std::abs(next[i] - landed[i]) < kPredictedMaxRowShiftPx);
+      const double s = num[i] / den[i];
+      out_x[i] = static_cast<float>(s * ray_x[i]);
+      out_y[i] = static_cast<float>(s * ray_y[i]);
+      out_z[i] = static_cast<float>(s);
+      ok[i] = f & (s >= min_depth) & (s <= max_depth);
+      exact[i] = 0;
+      landed_row[i] = next[i];
+      fine[i] = f;
+    }
+    if (std::memchr(fine, 0, static_cast<size_t>(n)) != nullptr) {
+      for (int i = 0; i < n; ++i) {
+        redo[redo_count] = i;
+        redo_count += fine[i] == 0;
+      }
+    }
+  } else {
+    for (int i = 0; i < n; ++i) redo[i] = i;
+    redo_count = n;
+  }
+  if (redo_count == 0) return;
+  if (redo_count == n) {
+    RayPlaneFromCentre<kColumns, kRational>(n, pose, lens, planes, grid, min_depth, max_depth,
+                                            ray_x, ray_y, coded, w, out_x, out_y, out_z, ok,
+                                            exact, landed_row);
+    return;
+  }
+  for (int j = 0; j < redo_count; ++j) {
+    const int i = redo[j];
+    w->redo_ray_x[j] = ray_x[i];
+    w->redo_ray_y[j] = ray_y[i];
+    w->redo_coded[j] = coded[i];
+  }
+  RayPlaneFromCentre<kColumns, kRational>(redo_count, pose, lens, planes, grid, min_depth,
+                                          max_depth, w->redo_ray_x, w->redo_ray_y,
+                                          w->redo_coded, w, w->redo_x, w->redo_y, w->redo_z,
+                                          w->redo_ok, w->redo_exact, w->redo_landed);
+  for (int j = 0; j < redo_count; ++j) {
+    const int i = redo[j];
+    out_x[i] = w->redo_x[j];
+    out_y[i] = w->redo_y[j];
+    out_z[i] = w->redo_z[j];
+    ok[i] = w->redo_ok[j];
+    exact[i] = w->redo_exact[j];
+    landed_row[i] = w->redo_landed[j];
   }
 }
 
@@ -723,6 +889,7 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
   inputs.next_rays = last_row ? nullptr : camera_rays_.ptr<float>(y + 1);
   inputs.next_map_x = last_row || map_x == nullptr ? nullptr : map.proj_x.ptr<float>(y + 1);
   inputs.next_map_y = last_row || map_y == nullptr ? nullptr : map.proj_y.ptr<float>(y + 1);
+  if ((map_x == nullptr) != (map_y == nullptr)) w.StartHistoryRow(y, camera_rays_.cols);
   const int n = triangulation_rows::SelectCandidates(inputs, w.xs.data(), w.ray_x_row.data(),
                                                      w.ray_y_row.data(), w.coded_u_row.data(),
                                                      w.coded_v_row.data());
@@ -782,9 +949,15 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
 #undef SOPE_TWO_AXIS
       continue;
     }
-#define SOPE_RAY_PLANE(C, R)                                                                \
+    if (y % kPredictionBandRows >= 2) {
+      w.Predict(w.xs.data() + begin, m, w.predicted);
+    } else {
+      std::fill(w.predicted, w.predicted + m, std::numeric_limits<double>::quiet_NaN());
+    }
+#define SOPE_RAY_PLANE(C, R)                                                                 \
   RayPlaneChunk<C, R>(m, pose, lens, planes, margin_grid, min_depth, max_depth, ray_x, ray_y, \
-                      columns ? coded_u : coded_v, &w, px, py, pz, ok, exact)
+                      columns ? coded_u : coded_v, w.predicted, &w, px, py, pz, ok, exact,   \
+                      w.landed_row)
     if (columns) {
       if (rational) SOPE_RAY_PLANE(true, true);
       else SOPE_RAY_PLANE(true, false);
@@ -793,6 +966,23 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
       else SOPE_RAY_PLANE(false, false);
     }
 #undef SOPE_RAY_PLANE
+    // The landings of the accepted points for the rows below (each column once per row;
+    // the row's entries start NaN). Mostly the chunk's columns are consecutive.
+    const int* columns_of = w.xs.data() + begin;
+    const double* landed_row = w.landed_row;
+    constexpr float kNaNf = std::numeric_limits<float>::quiet_NaN();
+    if (columns_of[m - 1] - columns_of[0] == m - 1) {
+      float* __restrict to = w.landed_now.data() + columns_of[0];
+      for (int i = 0; i < m; ++i) {
+        to[i] = (ok[i] != 0) & (exact[i] == 0) ? static_cast<float>(landed_row[i]) : kNaNf;
+      }
+    } else {
+      float* landed_now = w.landed_now.data();
+      for (int i = 0; i < m; ++i) {
+        landed_now[columns_of[i]] =
+            (ok[i] != 0) & (exact[i] == 0) ? static_cast<float>(landed_row[i]) : kNaNf;
+      }
+    }
   }
 }
 
@@ -833,12 +1023,18 @@ TriangulationResult Triangulator::Triangulate(const CorrespondenceMap& map, cons
   std::vector<int> block_begin(num_blocks + 1);
   for (int b = 0; b <= num_blocks; ++b) {
     block_begin[b] = roi.y + static_cast<int>(static_cast<int64_t>(roi.height) * b / num_blocks);
+    // Inner boundaries on the ray–plane prediction's bands (its rows predict from the rows
+    // above in the same band: a band is one block's).
+    if (b > 0 && b < num_blocks) {
+      block_begin[b] = std::max(roi.y, block_begin[b] / kPredictionBandRows * kPredictionBandRows);
+    }
   }
   std::vector<size_t> offset(num_blocks + 1, 0), accepted(num_blocks, 0),
       rejected(num_blocks, 0);
   for (int b = 0; b < num_blocks; ++b) {
     const cv::Rect rows(roi.x, block_begin[b], roi.width, block_begin[b + 1] - block_begin[b]);
-    offset[b + 1] = offset[b] + static_cast<size_t>(cv::countNonZero(map.mask(rows)));
+    offset[b + 1] =
+        offset[b] + (rows.empty() ? 0 : static_cast<size_t>(cv::countNonZero(map.mask(rows))));
   }
   const size_t capacity = offset[num_blocks];
   result.cloud.points.resize(capacity);

@@ -70,9 +70,11 @@ struct TriangulationRegion {
 //    the curved (distorted) column surface through the rows ±kPlaneHalfSpanPx around it,
 //    as the normal n / n_dominant (two floats), also bilinearly interpolated.
 // Each point is then closed-form arithmetic in double (midpoint, the 3×3 normal equations
-// of the linear method, or two ray–plane steps: the plane at the projector's centre row,
-// then at the row where that point lands), run over the valid pixels of a row as
-// branch-free loops the compiler vectorises. Coordinates outside the tables (and other
+// of the linear method, or ray–plane: the chord through the projector row (column) that
+// the same camera column's points of the two camera rows above predict — kept when the
+// point lands within 0.1 px of it, as ~95% do — else two plane-table steps, from the
+// projector's centre row and then from where that point lands, and the chord there), run
+// over the valid pixels of a row as branch-free loops the compiler vectorises. Coordinates outside the tables (and other
 // rare cases) go through the exact per-point path, so results are those of
 // TriangulateExact within float rounding (calibration_test checks 1e-6 m of depth).
 class Triangulator {
