@@ -230,6 +230,7 @@ struct Triangulator::RowScratch {
 
   // One chunk: camera ray, decoded coordinates, interpolation state, intermediate results.
   alignas(64) double look_u[kChunk], look_v[kChunk];
+  alignas(64) float look_uf[kChunk], look_vf[kChunk];  // the chord's lookups (in float)
   alignas(64) float frac_u[kChunk], frac_v[kChunk];
   alignas(64) int32_t index[kChunk];
   alignas(64) float top[4 * kChunk], bottom[4 * kChunk];  // (a, b) and (c, d) corner pairs
@@ -619,11 +620,15 @@ template <bool kColumns, bool kRational>
 void ChordStep(int n, const Pose& pose, const Lens& lens, const Grid& grid,
                const float* __restrict coded, const double* __restrict landed,
                Triangulator::RowScratch* w, uint8_t* __restrict on_grid) {
-  constexpr double kHalf = Triangulator::kPlaneHalfSpanPx;
-  double* __restrict look_u = w->look_u;
-  double* __restrict look_v = w->look_v;
+  // The lookups in float (as the two-axis grid's: twice the lanes): the decoded coordinate
+  // and kHalf are exact in it, and rounding the landed row by ~1e-4 px moves the point by
+  // the chord's second-order error of that distance, nothing.
+  constexpr float kHalf = static_cast<float>(Triangulator::kPlaneHalfSpanPx);
+  float* __restrict look_u = w->look_uf;
+  float* __restrict look_v = w->look_vf;
   for (int i = 0; i < n; ++i) {
-    const double u = kColumns ? coded[i] : landed[i], v = kColumns ? landed[i] : coded[i];
+    const float l = static_cast<float>(landed[i]);
+    const float u = kColumns ? coded[i] : l, v = kColumns ? l : coded[i];
     look_u[i] = (kColumns ? u : u - kHalf) + kHalf;
     look_v[i] = (kColumns ? v - kHalf : v) + kHalf;
   }
@@ -635,7 +640,8 @@ void ChordStep(int n, const Pose& pose, const Lens& lens, const Grid& grid,
   uint8_t* __restrict inside_b = w->inside;
   Interpolate(grid, n, look_u, look_v, w, xa, ya, inside_a);
   for (int i = 0; i < n; ++i) {
-    const double u = kColumns ? coded[i] : landed[i], v = kColumns ? landed[i] : coded[i];
+    const float l = static_cast<float>(landed[i]);
+    const float u = kColumns ? coded[i] : l, v = kColumns ? l : coded[i];
     look_u[i] = (kColumns ? u : u + kHalf) + kHalf;
     look_v[i] = (kColumns ? v + kHalf : v) + kHalf;
   }
