@@ -1,5 +1,9 @@
 #include "decoder/code_consistency.h"
 
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+#include <immintrin.h>
+#endif
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -331,12 +335,60 @@ struct Neighbourhood {
   std::vector<float> contrast;
   std::vector<float> value[2];  // the coded axes' coordinates
   int count = 0;
+  // Room for `window` neighbours, and the 16 a vector step may store past them.
   void Resize(int window) {
-    if (static_cast<int>(dx.size()) >= window) return;
-    for (std::vector<int>* v : {&dx, &dy}) v->resize(window);
-    for (std::vector<float>* v : {&contrast, &value[0], &value[1]}) v->resize(window);
+    const size_t n = static_cast<size_t>(window) + 16;
+    if (dx.size() >= n) return;
+    for (std::vector<int>* v : {&dx, &dy}) v->resize(n);
+    for (std::vector<float>* v : {&contrast, &value[0], &value[1]}) v->resize(n);
   }
 };
+
+// Appends the decoded pixels (mask non-zero) among columns [x0, x1] of one window row to
+// `out` from out->count on, in column order: offsets (xx − x, dy), contrasts and the two
+// coordinate slots. With AVX-512 16 columns a step (compress stores: the same arrays as
+// the portable loop, which writes every column and advances the count by the decoded ones).
+inline void AppendDecodedRow(const uint8_t* mask_row, const float* contrast_row,
+                             const float* row0, const float* row1, int x0, int x1, int x,
+                             int dy, Neighbourhood* out) {
+  int count = out->count;
+  int* __restrict dxs = out->dx.data();
+  int* __restrict dys = out->dy.data();
+  float* __restrict contrasts = out->contrast.data();
+  float* __restrict value0 = out->value[0].data();
+  float* __restrict value1 = out->value[1].data();
+#if defined(__AVX512F__) && defined(__AVX512BW__) && defined(__AVX512VL__)
+  const __m512i iota = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const __m512i row_offset = _mm512_set1_epi32(dy);
+  for (int xx = x0; xx <= x1; xx += 16) {
+    const int lanes = std::min(16, x1 - xx + 1);
+    const __mmask16 tail = static_cast<__mmask16>((1u << lanes) - 1u);
+    const __m128i m = _mm_maskz_loadu_epi8(tail, mask_row + xx);
+    const __mmask16 keep = _mm_mask_test_epi8_mask(tail, m, m);
+    if (keep == 0) continue;
+    _mm512_storeu_si512(dxs + count, _mm512_maskz_compress_epi32(
+                                         keep, _mm512_add_epi32(_mm512_set1_epi32(xx - x), iota)));
+    _mm512_storeu_si512(dys + count, _mm512_maskz_compress_epi32(keep, row_offset));
+    _mm512_storeu_ps(contrasts + count,
+                     _mm512_maskz_compress_ps(keep, _mm512_maskz_loadu_ps(tail, contrast_row + xx)));
+    _mm512_storeu_ps(value0 + count,
+                     _mm512_maskz_compress_ps(keep, _mm512_maskz_loadu_ps(tail, row0 + xx)));
+    _mm512_storeu_ps(value1 + count,
+                     _mm512_maskz_compress_ps(keep, _mm512_maskz_loadu_ps(tail, row1 + xx)));
+    count += __builtin_popcount(keep);
+  }
+#else
+  for (int xx = x0; xx <= x1; ++xx) {
+    dxs[count] = xx - x;
+    dys[count] = dy;
+    contrasts[count] = contrast_row[xx];
+    value0[count] = row0[xx];
+    value1[count] = row1[xx];
+    count += mask_row[xx] != 0;
+  }
+#endif
+  out->count = count;
+}
 
 struct Choice {
   float coordinate = kNaN;
@@ -527,28 +579,13 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     // decoded ones only: no branch on the mask).
     const int window = (2 * radius + 1) * (2 * radius + 1);
     const auto decoded_neighbours = [&](int x, int y, Neighbourhood* out) {
-      int count = 0;
+      out->count = 0;
       const int x0 = std::max(0, x - radius), x1 = std::min(cols - 1, x + radius);
-      int* __restrict dx = out->dx.data();
-      int* __restrict dy = out->dy.data();
-      float* __restrict neighbour_contrast = out->contrast.data();
-      float* __restrict value0 = out->value[0].data();
-      float* __restrict value1 = out->value[1].data();
       for (int yy = std::max(0, y - radius); yy <= std::min(rows - 1, y + radius); ++yy) {
-        const uint8_t* mask_row = mask_before.ptr<uint8_t>(yy);
-        const float* contrast_row = contrast_image.ptr<float>(yy);
-        const float* row0 = coordinates_before[0]->ptr<float>(yy);
-        const float* row1 = coordinates_before[1]->ptr<float>(yy);
-        for (int xx = x0; xx <= x1; ++xx) {
-          dx[count] = xx - x;
-          dy[count] = yy - y;
-          neighbour_contrast[count] = contrast_row[xx];
-          value0[count] = row0[xx];
-          value1[count] = row1[xx];
-          count += mask_row[xx] != 0;
-        }
+        AppendDecodedRow(mask_before.ptr<uint8_t>(yy), contrast_image.ptr<float>(yy),
+                         coordinates_before[0]->ptr<float>(yy),
+                         coordinates_before[1]->ptr<float>(yy), x0, x1, x, yy - y, out);
       }
-      out->count = count;
     };
     // Per thread: the working arrays of one decision.
     struct Scratch {

@@ -408,7 +408,9 @@ TEST(SceneRecognitionClassEvidence, AMugOnItsSideIsNotTakenForAWiderGlass) {
     // comes near (the glass accepted by geometry alone doubts the mug ranked far above it).
     for (const RecognisedObject& o : result.objects) {
       EXPECT_NE(o.recognition.ambiguous_with, o.best().class_name);
-      if (o.best().class_name == "glass") EXPECT_EQ(o.recognition.ambiguous_with, "mug");
+      if (o.best().class_name == "glass") {
+        EXPECT_EQ(o.recognition.ambiguous_with, "mug");
+      }
     }
     if (weight == 0.0) continue;  // shown for comparison only
     const RecognisedObject* found_mug = found_near(result, mug_centre, mug);
