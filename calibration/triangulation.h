@@ -83,8 +83,10 @@ class Triangulator {
   explicit Triangulator(const RigCalibration& calibration,
                         const TriangulationOptions& options = {});
 
-  // Triangulates every valid pixel of `map` (inside `region` when given). `white` (camera
-  // size, 8-bit grey or BGR, may be empty) colours the points. Throws sope::Error when the
+  // Triangulates every valid pixel of `map` (inside `region` when given; with one axis
+  // coded a region's points can differ from the whole image's in the last bits, within
+  // 1e-6 m: ray–plane predicts from the rows above). `white` (camera size, 8-bit grey or
+  // BGR, may be empty) colours the points. Throws sope::Error when the
   // map and the calibration disagree in camera or projector size, or the region's mask is
   // not CV_8UC1 of the camera size.
   TriangulationResult Triangulate(const CorrespondenceMap& map, const cv::Mat& white) const;

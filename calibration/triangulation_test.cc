@@ -323,6 +323,39 @@ TEST(FastTriangulation, RayPlaneMatchesTheExactPathAcrossDepthSteps) {
   }
 }
 
+// With one axis coded, a region's points are the full image's within 1e-6 m (ray–plane
+// predicts from the rows above, which a region may leave out: the last bits can differ),
+// and the same pixels.
+TEST(FastTriangulation, RayPlaneRegionMatchesTheFullCloud) {
+  for (const bool x_axis : {true, false}) {
+    const RigCalibration rig = TestRig(/*vertical=*/!x_axis, /*wide=*/true);
+    cv::Mat truth;
+    const CorrespondenceMap map = PlaneMap(rig, x_axis, !x_axis, false, &truth, true);
+    const Triangulator triangulator(rig);
+    const TriangulationResult full = triangulator.Triangulate(map, cv::Mat());
+    TriangulationRegion region;
+    region.roi = cv::Rect(37, 29, 211, 151);
+    region.mask = cv::Mat::zeros(map.mask.size(), CV_8UC1);
+    cv::circle(region.mask, cv::Point(150, 110), 70, cv::Scalar(255), cv::FILLED);
+    for (int y = 0; y < map.height(); y += 5) region.mask.row(y).setTo(0);  // gaps in rows
+    const TriangulationResult part = triangulator.Triangulate(map, cv::Mat(), region);
+    size_t k = 0;
+    double max_difference = 0.0;
+    for (size_t i = 0; i < full.cloud.size(); ++i) {
+      const cv::Point p = full.pixels[i];
+      if (!region.roi.contains(p) || region.mask.at<uint8_t>(p) == 0) continue;
+      ASSERT_LT(k, part.cloud.size());
+      ASSERT_EQ(part.pixels[k], p);
+      max_difference = std::max<double>(
+          max_difference, (part.cloud.points[k] - full.cloud.points[i]).norm());
+      ++k;
+    }
+    EXPECT_EQ(k, part.cloud.size());
+    EXPECT_GT(k, 5000u);
+    EXPECT_LE(max_difference, 1e-6) << "x " << x_axis;
+  }
+}
+
 TEST(FastTriangulation, CoordinatesOffTheTablesTakeTheExactPath) {
   for (const bool two_axes : {true, false}) {
     const RigCalibration rig = TestRig();
