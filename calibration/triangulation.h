@@ -74,9 +74,10 @@ struct TriangulationRegion {
 // the same camera column's points of the two camera rows above predict — kept when the
 // point lands within 0.1 px of it, as ~95% do — else two plane-table steps, from the
 // projector's centre row and then from where that point lands, and the chord there), run
-// over the valid pixels of a row as branch-free loops the compiler vectorises. Coordinates outside the tables (and other
-// rare cases) go through the exact per-point path, so results are those of
-// TriangulateExact within float rounding (calibration_test checks 1e-6 m of depth).
+// over the valid pixels of a row as branch-free loops the compiler vectorises. Coordinates
+// outside the tables (and other rare cases) go through the exact per-point path, so
+// results are those of TriangulateExact within float rounding (calibration_test checks
+// 1e-6 m of depth).
 class Triangulator {
  public:
   // Throws sope::Error on an invalid calibration or options.

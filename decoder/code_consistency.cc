@@ -366,11 +366,11 @@ inline void AppendDecodedRow(const uint8_t* mask_row, const float* contrast_row,
     const __m128i m = _mm_maskz_loadu_epi8(tail, mask_row + xx);
     const __mmask16 keep = _mm_mask_test_epi8_mask(tail, m, m);
     if (keep == 0) continue;
-    _mm512_storeu_si512(dxs + count, _mm512_maskz_compress_epi32(
-                                         keep, _mm512_add_epi32(_mm512_set1_epi32(xx - x), iota)));
+    const __m512i offsets = _mm512_add_epi32(_mm512_set1_epi32(xx - x), iota);
+    _mm512_storeu_si512(dxs + count, _mm512_maskz_compress_epi32(keep, offsets));
     _mm512_storeu_si512(dys + count, _mm512_maskz_compress_epi32(keep, row_offset));
-    _mm512_storeu_ps(contrasts + count,
-                     _mm512_maskz_compress_ps(keep, _mm512_maskz_loadu_ps(tail, contrast_row + xx)));
+    const __m512 contrast = _mm512_maskz_loadu_ps(tail, contrast_row + xx);
+    _mm512_storeu_ps(contrasts + count, _mm512_maskz_compress_ps(keep, contrast));
     _mm512_storeu_ps(value0 + count,
                      _mm512_maskz_compress_ps(keep, _mm512_maskz_loadu_ps(tail, row0 + xx)));
     _mm512_storeu_ps(value1 + count,
