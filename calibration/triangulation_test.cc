@@ -323,6 +323,15 @@ TEST(FastTriangulation, RayPlaneMatchesTheExactPathAcrossDepthSteps) {
   }
 }
 
+// A region of `map`'s camera: `roi` and a disc of `radius` pixels about (150, 110).
+TriangulationRegion DiscRegion(const CorrespondenceMap& map, const cv::Rect& roi, int radius) {
+  TriangulationRegion region;
+  region.roi = roi;
+  region.mask = cv::Mat::zeros(map.mask.size(), CV_8UC1);
+  cv::circle(region.mask, cv::Point(150, 110), radius, cv::Scalar(255), cv::FILLED);
+  return region;
+}
+
 // With one axis coded, a region's points are the full image's within 1e-6 m (ray–plane
 // predicts from the rows above, which a region may leave out: the last bits can differ),
 // and the same pixels.
@@ -333,10 +342,7 @@ TEST(FastTriangulation, RayPlaneRegionMatchesTheFullCloud) {
     const CorrespondenceMap map = PlaneMap(rig, x_axis, !x_axis, false, &truth, true);
     const Triangulator triangulator(rig);
     const TriangulationResult full = triangulator.Triangulate(map, cv::Mat());
-    TriangulationRegion region;
-    region.roi = cv::Rect(37, 29, 211, 151);
-    region.mask = cv::Mat::zeros(map.mask.size(), CV_8UC1);
-    cv::circle(region.mask, cv::Point(150, 110), 70, cv::Scalar(255), cv::FILLED);
+    TriangulationRegion region = DiscRegion(map, cv::Rect(37, 29, 211, 151), 70);
     for (int y = 0; y < map.height(); y += 5) region.mask.row(y).setTo(0);  // gaps in rows
     const TriangulationResult part = triangulator.Triangulate(map, cv::Mat(), region);
     size_t k = 0;
@@ -385,10 +391,7 @@ TEST(FastTriangulation, RegionRestrictsToItsPixels) {
   const CorrespondenceMap map = PlaneMap(rig, true, true, false, &truth);
   const Triangulator triangulator(rig);
   const TriangulationResult full = triangulator.Triangulate(map, cv::Mat());
-  TriangulationRegion region;
-  region.roi = cv::Rect(40, 30, 200, 150);
-  region.mask = cv::Mat::zeros(map.mask.size(), CV_8UC1);
-  cv::circle(region.mask, cv::Point(150, 110), 60, cv::Scalar(255), cv::FILLED);
+  TriangulationRegion region = DiscRegion(map, cv::Rect(40, 30, 200, 150), 60);
   const TriangulationResult part = triangulator.Triangulate(map, cv::Mat(), region);
   size_t expected = 0, expected_rejected = 0;
   for (size_t i = 0; i < full.cloud.size(); ++i) {
