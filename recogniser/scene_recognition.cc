@@ -1227,6 +1227,29 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   return added;
 }
 
+// Parts of clusters (convex segments, unexplained remainders), each recognised alone: the
+// recognitions side by side with several threads, then in order each part's hypotheses
+// and, with part_size_looks, its size looks. Returns how many hypotheses each part added.
+std::vector<size_t> AddPartHypotheses(const SceneContext& ctx,
+                                      const std::vector<std::pair<int, PointCloud>>& parts,
+                                      HypothesisPool* pool) {
+  std::vector<const PointCloud*> clouds;
+  for (const auto& [cluster, part] : parts) clouds.push_back(&part);
+  const std::vector<RecognitionResult> recognised = RecogniseSideBySide(ctx, clouds, pool);
+  std::vector<size_t> added(parts.size(), 0);
+  for (size_t k = 0; k < parts.size(); ++k) {
+    const auto& [cluster, part] = parts[k];
+    const size_t before = pool->hypotheses.size();
+    AddClusterHypotheses(ctx, cluster, recognised[k], pool);
+    if (ctx.options.part_size_looks) {
+      LazyPoseQuery part_query(ctx, part);
+      AddSizeLooksOn(ctx, recognised[k], cluster, part, part_query.Getter(), pool);
+    }
+    added[k] = pool->hypotheses.size() - before;
+  }
+  return added;
+}
+
 // Clusters `to_split` (each once) split along their concave seams: each of the
 // split_segments largest segments (of at least min_cluster_points points, and not the
 // whole cluster) is recognised alone and adds its hypotheses (in cluster and segment
@@ -1235,7 +1258,6 @@ bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_spl
                         HypothesisPool* pool) {
   const SceneRecognitionOptions& options = ctx.options;
   if (options.split_segments <= 0) return false;
-  bool added = false;
   std::vector<std::pair<int, PointCloud>> parts;  // (cluster, the segment's points)
   for (size_t c = 0; c < ctx.clusters.size(); ++c) {
     if (!to_split[c] || pool->split_tried[c]) continue;
@@ -1258,22 +1280,8 @@ bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_spl
       for (const int i : segment) part.points.push_back(points.points[i]);
     }
   }
-  // The parts' recognitions (side by side with several threads); then each part's
-  // hypotheses and size looks, in order.
-  std::vector<const PointCloud*> clouds;
-  for (const auto& [cluster, part] : parts) clouds.push_back(&part);
-  const std::vector<RecognitionResult> recognised = RecogniseSideBySide(ctx, clouds, pool);
-  for (size_t k = 0; k < parts.size(); ++k) {
-    const auto& [cluster, part] = parts[k];
-    const size_t before = pool->hypotheses.size();
-    const RecognitionResult& recognition = recognised[k];
-    AddClusterHypotheses(ctx, cluster, recognition, pool);
-    if (ctx.options.part_size_looks) {
-      LazyPoseQuery part_query(ctx, part);
-      AddSizeLooksOn(ctx, recognition, cluster, part, part_query.Getter(), pool);
-    }
-    added |= pool->hypotheses.size() > before;
-  }
+  bool added = false;
+  for (const size_t count : AddPartHypotheses(ctx, parts, pool)) added |= count > 0;
   return added;
 }
 
@@ -1656,24 +1664,13 @@ bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>&
     pool->remainder_tried[c] = 1;
     remainders.emplace_back(static_cast<int>(c), std::move(remainder));
   }
-  // Their recognitions (side by side with several threads); then each one's hypotheses and
-  // size looks, in cluster order.
-  std::vector<const PointCloud*> clouds;
-  for (const auto& [c, remainder] : remainders) clouds.push_back(&remainder);
-  const std::vector<RecognitionResult> recognised = RecogniseSideBySide(ctx, clouds, pool);
+  const std::vector<size_t> counts = AddPartHypotheses(ctx, remainders, pool);
   bool added = false;
   for (size_t k = 0; k < remainders.size(); ++k) {
     const auto& [c, remainder] = remainders[k];
-    const size_t before = pool->hypotheses.size();
-    const RecognitionResult& recognition = recognised[k];
-    AddClusterHypotheses(ctx, c, recognition, pool);
-    if (options.part_size_looks) {
-      LazyPoseQuery remainder_query(ctx, remainder);
-      AddSizeLooksOn(ctx, recognition, c, remainder, remainder_query.Getter(), pool);
-    }
     spdlog::debug("cluster {}: {:.0f}% unexplained, its remainder of {} points gave {} hypotheses",
-                  c, 100 * left[c], remainder.size(), pool->hypotheses.size() - before);
-    added |= pool->hypotheses.size() > before;
+                  c, 100 * left[c], remainder.size(), counts[k]);
+    added |= counts[k] > 0;
   }
   return added;
 }
