@@ -7,6 +7,8 @@
 #include <numeric>
 #include <utility>
 
+#include <immintrin.h>
+
 #include <Eigen/Eigenvalues>
 
 #include "core/error.h"
@@ -67,13 +69,41 @@ int32_t CandidateIndex(uint64_t packed) { return static_cast<int32_t>(packed & 0
 // rounding of a squared distance is far below it.
 constexpr float kBoundMargin = 1.0f - 1e-5f;
 
+#if defined(__AVX512F__)
+// The min(16, n) smallest of the n distinct packed candidates `in`, ascending, into
+// out[0, min(16, n)) (out may be in): an insertion into a sorted register pair per
+// candidate — lanes greater than the candidate take their left neighbour or the
+// candidate, whichever is greater.
+void SmallestSixteen(const uint64_t* in, size_t n, uint64_t* out) {
+  __m512i lo = _mm512_set1_epi64(-1), hi = lo;
+  for (size_t i = 0; i < n; ++i) {
+    const __m512i c = _mm512_set1_epi64(static_cast<long long>(in[i]));
+    const __mmask8 above_lo = _mm512_cmpgt_epu64_mask(lo, c);
+    const __mmask8 above_hi = _mm512_cmpgt_epu64_mask(hi, c);
+    const __m512i shifted_lo = _mm512_alignr_epi64(lo, c, 7);   // c, lo0 … lo6
+    const __m512i shifted_hi = _mm512_alignr_epi64(hi, lo, 7);  // lo7, hi0 … hi6
+    lo = _mm512_mask_mov_epi64(lo, above_lo, _mm512_max_epu64(shifted_lo, c));
+    hi = _mm512_mask_mov_epi64(hi, above_hi, _mm512_max_epu64(shifted_hi, c));
+  }
+  alignas(64) uint64_t sorted[16];
+  _mm512_store_si512(sorted, lo);
+  _mm512_store_si512(sorted + 8, hi);
+  std::memcpy(out, sorted, std::min<size_t>(n, 16) * sizeof(uint64_t));
+}
+#endif
+
 }  // namespace
 
 // ---------------------------------------------------------------------------------------
 // Voxel grid
 
-std::vector<Eigen::Vector3f> VoxelGridCentroids(const std::vector<Eigen::Vector3f>& points,
-                                                float leaf, std::vector<uint32_t>* counts) {
+namespace {
+
+// VoxelGridCentroids of the points `keep` returns true for.
+template <typename Keep>
+std::vector<Eigen::Vector3f> VoxelCentroidsOf(const std::vector<Eigen::Vector3f>& points,
+                                              float leaf, std::vector<uint32_t>* counts,
+                                              Keep&& keep) {
   SOPE_CHECK(std::isfinite(leaf) && leaf > 0.0f, "voxel grid: leaf must be > 0 metres, got {}",
              leaf);
   if (counts != nullptr) counts->clear();
@@ -119,6 +149,7 @@ std::vector<Eigen::Vector3f> VoxelGridCentroids(const std::vector<Eigen::Vector3
     v.count = count;
   };
   for (const Eigen::Vector3f& p : points) {
+    if (!keep(p)) continue;
     int64_t cell[3];
     for (int a = 0; a < 3; ++a) {
       const int64_t c = static_cast<int64_t>(std::floor(p[a] * inverse_leaf)) + kVoxelOffset;
@@ -172,6 +203,32 @@ std::vector<Eigen::Vector3f> VoxelGridCentroids(const std::vector<Eigen::Vector3
                            static_cast<float>(voxel.sum[1] * inv),
                            static_cast<float>(voxel.sum[2] * inv));
   }
+  return centroids;
+}
+
+}  // namespace
+
+std::vector<Eigen::Vector3f> VoxelGridCentroids(const std::vector<Eigen::Vector3f>& points,
+                                                float leaf, std::vector<uint32_t>* counts) {
+  return VoxelCentroidsOf(points, leaf, counts, [](const Eigen::Vector3f&) { return true; });
+}
+
+std::vector<Eigen::Vector3f> VoxelGridCentroidsInBand(const std::vector<Eigen::Vector3f>& points,
+                                                      float leaf, double min_sq, double max_sq,
+                                                      std::vector<uint32_t>* counts,
+                                                      int64_t* finite, int64_t* in_band) {
+  int64_t finite_points = 0, band_points = 0;
+  std::vector<Eigen::Vector3f> centroids =
+      VoxelCentroidsOf(points, leaf, counts, [&](const Eigen::Vector3f& p) {
+        if (!(std::isfinite(p.x()) && std::isfinite(p.y()) && std::isfinite(p.z()))) return false;
+        ++finite_points;
+        const double sq = p.cast<double>().squaredNorm();
+        if (!(sq >= min_sq && sq <= max_sq)) return false;
+        ++band_points;
+        return true;
+      });
+  if (finite != nullptr) *finite = finite_points;
+  if (in_band != nullptr) *in_band = band_points;
   return centroids;
 }
 
@@ -409,9 +466,38 @@ NeighbourTable NeighbourGrid::AllKNearest(int k) const {
   auto add = [&](const Candidates& from, float qx, float qy, float qz, int32_t self,
                  float max_sq) {
     size_t n = candidates.size();
-    candidates.resize(n + from.index.size());
+    candidates.resize(n + from.index.size() + 8);  // + 8: full-width stores of compressed lanes
     uint64_t* out = candidates.data();
-    for (size_t j = 0; j < from.index.size(); ++j) {
+    size_t j = 0;
+#if defined(__AVX512F__) && defined(__FMA__)
+    // 16 at a time: the same squared distances (the scalar loop's contraction,
+    // fma(dz, dz, fma(dx, dx, dy·dy))) and the kept ones packed in order by compress stores.
+    const __m512 vx = _mm512_set1_ps(qx), vy = _mm512_set1_ps(qy), vz = _mm512_set1_ps(qz);
+    const __m512 vmax = _mm512_set1_ps(max_sq);
+    const __m512i vself = _mm512_set1_epi32(self);
+    for (; j + 16 <= from.index.size(); j += 16) {
+      const __m512 dx = _mm512_sub_ps(_mm512_loadu_ps(from.x.data() + j), vx);
+      const __m512 dy = _mm512_sub_ps(_mm512_loadu_ps(from.y.data() + j), vy);
+      const __m512 dz = _mm512_sub_ps(_mm512_loadu_ps(from.z.data() + j), vz);
+      const __m512 sq = _mm512_fmadd_ps(dz, dz, _mm512_fmadd_ps(dx, dx, _mm512_mul_ps(dy, dy)));
+      const __m512i index = _mm512_loadu_si512(from.index.data() + j);
+      const __mmask16 keep = _mm512_cmp_ps_mask(sq, vmax, _CMP_LT_OQ) &
+                             _mm512_cmpneq_epi32_mask(index, vself);
+      const __m512i bits = _mm512_castps_si512(sq);
+      const __m512i lo = _mm512_or_si512(
+          _mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_castsi512_si256(bits)), 32),
+          _mm512_cvtepu32_epi64(_mm512_castsi512_si256(index)));
+      const __m512i hi = _mm512_or_si512(
+          _mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_extracti64x4_epi64(bits, 1)), 32),
+          _mm512_cvtepu32_epi64(_mm512_extracti64x4_epi64(index, 1)));
+      const __mmask8 keep_lo = static_cast<__mmask8>(keep), keep_hi = static_cast<__mmask8>(keep >> 8);
+      _mm512_storeu_si512(out + n, _mm512_maskz_compress_epi64(keep_lo, lo));
+      n += static_cast<size_t>(__builtin_popcount(keep_lo));
+      _mm512_storeu_si512(out + n, _mm512_maskz_compress_epi64(keep_hi, hi));
+      n += static_cast<size_t>(__builtin_popcount(keep_hi));
+    }
+#endif
+    for (; j < from.index.size(); ++j) {
       const float dx = from.x[j] - qx, dy = from.y[j] - qy, dz = from.z[j] - qz;
       const float sq = dx * dx + dy * dy + dz * dz;
       out[n] = PackCandidate(sq, from.index[j]);  // kept by advancing past it (no branch)
@@ -423,6 +509,12 @@ NeighbourTable NeighbourGrid::AllKNearest(int k) const {
   // covered radius (all candidates do, by `add`).
   auto settle = [&]() {
     if (static_cast<int>(candidates.size()) < others) return false;
+#if defined(__AVX512F__)
+    if (others <= 16) {
+      SmallestSixteen(candidates.data(), candidates.size(), candidates.data());
+      return true;
+    }
+#endif
     std::nth_element(candidates.begin(), candidates.begin() + (others - 1), candidates.end());
     std::sort(candidates.begin(), candidates.begin() + others);
     return true;

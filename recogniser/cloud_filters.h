@@ -27,6 +27,14 @@ namespace internal {
 std::vector<Eigen::Vector3f> VoxelGridCentroids(const std::vector<Eigen::Vector3f>& points,
                                                 float leaf,
                                                 std::vector<uint32_t>* counts = nullptr);
+// VoxelGridCentroids of the finite points whose squared norm (in double) lies in
+// [min_sq, max_sq] (the same centroids as after filtering them out first, without the
+// copy); `finite` and `in_band` (optional) receive how many points were finite and how
+// many of those in the band.
+std::vector<Eigen::Vector3f> VoxelGridCentroidsInBand(const std::vector<Eigen::Vector3f>& points,
+                                                      float leaf, double min_sq, double max_sq,
+                                                      std::vector<uint32_t>* counts,
+                                                      int64_t* finite, int64_t* in_band);
 
 // k nearest neighbours of every point of a cloud: row i holds `count` entries, point i itself
 // first (distance 0), then the others by increasing squared distance (ties by index), as

@@ -81,50 +81,44 @@ struct RangeBand {
   }
 };
 
-// Step 1: the finite points inside the range band. The input normals and colours are not
-// used (normals are re-estimated after thinning so that database and query clouds get the
-// same estimator).
-std::vector<Eigen::Vector3f> FiniteInRange(const PointCloud& cloud,
+// Steps 1 and 2: the finite points inside the range band (the input normals and colours
+// are not used: normals are re-estimated after thinning so that database and query clouds
+// get the same estimator), thinned by the voxel grid (it thins 100k raw points to a few
+// thousand, and the neighbour statistics are then on an even sampling) in the same pass,
+// coarsened until at most kMaxVoxelPoints remain. `voxel_counts` receives the raw points
+// behind each voxel (empty without a grid).
+std::vector<Eigen::Vector3f> InRangeVoxels(const PointCloud& cloud,
                                            const PreprocessOptions& options,
-                                           PreprocessSummary* summary) {
+                                           PreprocessSummary* summary,
+                                           std::vector<uint32_t>* voxel_counts) {
   const RangeBand band(options);
   std::vector<Eigen::Vector3f> points;
-  points.reserve(cloud.size());
-  for (const Eigen::Vector3f& p : cloud.points) {
-    if (!IsFinite(p)) continue;
-    ++summary->finite_points;
-    if (band.Contains(p)) points.push_back(p);
+  if (options.voxel_leaf > 0.0) {
+    points = internal::VoxelGridCentroidsInBand(
+        cloud.points, static_cast<float>(options.voxel_leaf), band.min_sq, band.max_sq,
+        voxel_counts, &summary->finite_points, &summary->in_range_points);
+  } else {
+    points.reserve(cloud.size());
+    for (const Eigen::Vector3f& p : cloud.points) {
+      if (!IsFinite(p)) continue;
+      ++summary->finite_points;
+      if (band.Contains(p)) points.push_back(p);
+    }
+    summary->in_range_points = static_cast<int64_t>(points.size());
   }
-  summary->in_range_points = static_cast<int64_t>(points.size());
   SOPE_CHECK(summary->finite_points > 0, "Preprocess: none of the {} input points is finite",
              summary->input_points);
-  SOPE_CHECK(!points.empty(),
+  SOPE_CHECK(summary->in_range_points > 0,
              "Preprocess: no point left: all {} finite points lie outside the range band "
              "[{}, {}] m",
              summary->finite_points, options.min_range, options.max_range);
-  return points;
-}
-
-// Step 2: the voxel grid (it thins 100k raw points to a few thousand, and the neighbour
-// statistics are then on an even sampling), coarsened until at most kMaxVoxelPoints remain.
-// `voxel_counts` receives the raw points behind each voxel (empty without a grid).
-std::vector<Eigen::Vector3f> ThinToVoxels(const PointCloud& cloud,
-                                          std::vector<Eigen::Vector3f> points,
-                                          const PreprocessOptions& options,
-                                          std::vector<uint32_t>* voxel_counts) {
-  const size_t in_range_points = points.size();
-  if (options.voxel_leaf > 0.0) {
-    points =
-        internal::VoxelGridCentroids(points, static_cast<float>(options.voxel_leaf), voxel_counts);
-  }
   if (points.size() <= kMaxVoxelPoints) return points;
   // Coarsen from the in-range points (so the counts stay per raw point): the number of
   // voxels falls at least as the square of the leaf on a surface, faster in a volume.
   const size_t first_voxels = points.size();
   std::vector<Eigen::Vector3f> in_range;
   if (options.voxel_leaf > 0.0) {
-    const RangeBand band(options);
-    in_range.reserve(in_range_points);
+    in_range.reserve(static_cast<size_t>(summary->in_range_points));
     for (const Eigen::Vector3f& p : cloud.points) {
       if (IsFinite(p) && band.Contains(p)) in_range.push_back(p);
     }
@@ -258,7 +252,7 @@ PreprocessedCloud Preprocess(const PointCloud& cloud, const PreprocessOptions& o
   summary.input_points = static_cast<int64_t>(cloud.size());
   std::vector<uint32_t> voxel_counts;
   const std::vector<Eigen::Vector3f> points =
-      ThinToVoxels(cloud, FiniteInRange(cloud, options, &summary), options, &voxel_counts);
+      InRangeVoxels(cloud, options, &summary, &voxel_counts);
   summary.voxel_points = static_cast<int64_t>(points.size());
   RemoveOutliersAndFitNormals(points, voxel_counts, options, &out);
   summary.final_points = static_cast<int64_t>(out.cloud.size());

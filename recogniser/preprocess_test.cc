@@ -268,6 +268,43 @@ TEST(VoxelGrid, MatchesPclVoxelGridIncludingOrder) {
   EXPECT_THROW_WITH_MESSAGE(internal::VoxelGridCentroids(points, 0.0f), Error, "leaf", "got 0");
 }
 
+// The band-filtered grid (Preprocess's one pass) gives the centroids and counts of the grid
+// on the points filtered first, bit for bit, and counts the finite and in-band points.
+TEST(VoxelGrid, InBandEqualsTheGridOfTheFilteredPoints) {
+  std::mt19937 rng(8);
+  std::uniform_real_distribution<float> uniform(-0.4f, 0.4f);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  std::vector<Vector3f> points;
+  for (int i = 0; i < 30000; ++i) {
+    points.emplace_back(uniform(rng), uniform(rng), 0.7f + uniform(rng));
+    if (i % 97 == 0) points.emplace_back(nan, 0.1f, 0.5f);
+    if (i % 89 == 0) points.emplace_back(0.1f, std::numeric_limits<float>::infinity(), 0.5f);
+  }
+  const double min_range = 0.5, max_range = 0.9;
+  std::vector<Vector3f> kept;
+  int64_t finite = 0;
+  for (const Vector3f& p : points) {
+    if (!p.allFinite()) continue;
+    ++finite;
+    const double sq = p.cast<double>().squaredNorm();
+    if (sq >= min_range * min_range && sq <= max_range * max_range) kept.push_back(p);
+  }
+  ASSERT_GT(kept.size(), 1000u);
+  ASSERT_LT(kept.size(), static_cast<size_t>(finite));
+  for (float leaf : {0.004f, 0.02f}) {
+    std::vector<uint32_t> expected_counts, counts;
+    const std::vector<Vector3f> expected = internal::VoxelGridCentroids(kept, leaf, &expected_counts);
+    int64_t got_finite = -1, got_in_band = -1;
+    const std::vector<Vector3f> got = internal::VoxelGridCentroidsInBand(
+        points, leaf, min_range * min_range, max_range * max_range, &counts, &got_finite,
+        &got_in_band);
+    EXPECT_EQ(got, expected) << "leaf " << leaf;
+    EXPECT_EQ(counts, expected_counts) << "leaf " << leaf;
+    EXPECT_EQ(got_finite, finite);
+    EXPECT_EQ(got_in_band, static_cast<int64_t>(kept.size()));
+  }
+}
+
 TEST(NeighbourGrid, AllKNearestEqualsBruteForce) {
   std::mt19937 rng(11);
   std::normal_distribution<float> normal(0.0f, 1.0f);

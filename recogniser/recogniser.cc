@@ -164,7 +164,12 @@ const std::vector<OptionField<WideningOptions>>& WideningOptions::Fields() {
           .Flag("--widen-batch"),
       Field(&O::continue_below, "continue_below",
             "Widened batches after the first only while the best score so far is below this")
-          .AtLeast(0.0)};
+          .AtLeast(0.0),
+      Field(&O::screen_stop, "screen_stop",
+            "A widened batch stops screening once a short-ICP hypothesis scores this much (0: "
+            "screens all its views)")
+          .AtLeast(0.0)
+          .Flag("--widen-stop")};
   return fields;
 }
 void WideningOptions::Check() const { CheckFields(*this, Fields(), "recognition: widening."); }

@@ -176,6 +176,13 @@ struct WideningOptions {
   // 0.71–0.82 — while the 2 answers found after the first batch started from 0.39 and
   // 0.50). ≥ below_score: every batch.
   double continue_below = 0.7;
+  // A batch's views are screened a few at a time (model by model in the batch's order, each
+  // model's best-ranked views first), and the rest of the batch is not screened once a
+  // short-ICP hypothesis scores at least screen_stop: that model is refined with the others
+  // screened so far (0: every view of the batch). Instance protocol (190 queries, up to 25%
+  // hidden): the same answers as 0 (at 0.85 and 0.9), the widened screening's CPU time
+  // 84.5 → 63.1 ms over the 15 widened queries.
+  double screen_stop = 0.9;
   static const std::vector<OptionField<WideningOptions>>& Fields();
   void Check() const;
 };

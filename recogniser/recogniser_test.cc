@@ -354,7 +354,8 @@ TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
     StageContext context(*db_, query, coarse);
     const FineResult fine = FineStage(&context, options);
     // Never verifying (a threshold above any score) and never settling for the best so
-    // far: every batch runs.
+    // far: every batch runs, each screening all its views.
+    options.widening.screen_stop = 0.0;
     options.widening.below_score = 1.5;
     options.widening.continue_below = 1.5;
     options.widening.batch_models = 0;
@@ -390,6 +391,49 @@ TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
       if (c.refined) best = std::max(best, c.alignment.score);
     }
     EXPECT_GE(best, 0.05);
+  }
+}
+
+// A widened batch's screening stops after the chunk of views in which a short-ICP
+// hypothesis reached screen_stop (WideningOptions::screen_stop), and screens every view when
+// none does, as with screen_stop 0.
+TEST_F(RecogniserTest, WidenedScreeningStopsAtTheChunkThatReachesScreenStop) {
+  const auto screened_of = [](const std::vector<PoseCandidate>& candidates) {
+    std::vector<std::pair<int, int>> views;  // model, view
+    for (const PoseCandidate& c : candidates) views.emplace_back(c.model, c.ranked.view);
+    std::sort(views.begin(), views.end());
+    return views;
+  };
+  for (const Query& q : MakeQueries(2, 61)) {
+    const ViewDescription query = DescribeQuery(*db_, q.query.cloud);
+    RecognitionOptions options;
+    const CoarseResult coarse = CoarseStage(*db_, query, options);
+    StageContext context(*db_, query, coarse);
+    const FineResult fine = FineStage(&context, options);
+    // One batch of every widened model, never verifying.
+    options.widening.below_score = 1.5;
+    options.widening.continue_below = 1.5;
+    options.widening.batch_models = 0;
+    options.widening.screen_stop = 0.0;
+    const std::vector<PoseCandidate> all = WidenSearch(&context, fine, 0.0, 4, options);
+    ASSERT_GT(all.size(), 8u);
+    // A stop no hypothesis reaches: every view, the same hypotheses.
+    options.widening.screen_stop = 1.5;
+    const std::vector<PoseCandidate> unreached = WidenSearch(&context, fine, 0.0, 4, options);
+    EXPECT_EQ(screened_of(unreached), screened_of(all));
+    ASSERT_EQ(unreached.size(), all.size());
+    for (size_t i = 0; i < all.size(); ++i) {
+      EXPECT_EQ(unreached[i].alignment.score, all[i].alignment.score);
+    }
+    // A stop the first chunk reaches: its views alone (at most one chunk of 4).
+    options.widening.screen_stop = 1e-6;
+    const std::vector<PoseCandidate> first = WidenSearch(&context, fine, 0.0, 4, options);
+    EXPECT_GE(first.size(), 1u);
+    EXPECT_LE(first.size(), 4u);
+    const std::vector<std::pair<int, int>> all_views = screened_of(all);
+    for (const auto& view : screened_of(first)) {
+      EXPECT_TRUE(std::binary_search(all_views.begin(), all_views.end(), view));
+    }
   }
 }
 

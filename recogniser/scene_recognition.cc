@@ -258,6 +258,7 @@ RecognitionResult RecogniseCluster(const SceneContext& ctx, const PointCloud& po
   RecognitionOptions recognition_options = options.recognition;
   if (options.widen_every_batch) {
     recognition_options.widening.continue_below = recognition_options.widening.below_score;
+    recognition_options.widening.screen_stop = 0.0;
   }
   RecognitionResult recognition;
   try {

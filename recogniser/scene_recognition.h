@@ -32,7 +32,9 @@ struct SceneRecognitionOptions {
   // cluster's score is lowered by its segmentation (a part of an object, two objects
   // merged) and by unseen instances, so a 0.7 answer is not the confirmed one it is for a
   // whole object of the database (procedural tables, six seeds: 237 rather than 239 of 287
-  // objects of the right class with continue_below applied).
+  // objects of the right class with continue_below applied). Each batch then also screens
+  // all its views (recognition.widening.screen_stop is not applied either: on the six seeds
+  // it lost a saucepan the full batch found, 242 rather than 243).
   bool widen_every_batch = true;
   SceneVerificationOptions verification;
   // Posed suggestions of each cluster that become scene hypotheses, and the least

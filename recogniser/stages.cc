@@ -468,17 +468,32 @@ std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& 
   std::vector<PoseCandidate> screened(jobs.size());
   std::vector<uint8_t> found(jobs.size(), 0);
   std::vector<std::vector<PoseMemo::Screened>> run(jobs.size());
-  RunJobs(options.threads, jobs.size(), [&](size_t j) {
-    found[j] = ScreenView(context, jobs[j].second, jobs[j].first, request.hypotheses,
-                          quick_options, options, memo, &screened[j], &run[j]);
-  });
+  // All views at once, or stop_chunk at a time until a hypothesis reaches stop_score (the
+  // chunks fixed by the order, not by the threads: the same answers for any thread count).
+  const bool stop = request.stop_score > 0.0;
+  const size_t chunk =
+      stop ? static_cast<size_t>(std::max(1, request.stop_chunk)) : std::max<size_t>(1, jobs.size());
+  size_t done = 0;
+  double best = 0.0;
+  while (done < jobs.size() && !(stop && best >= request.stop_score)) {
+    const size_t begin = done, count = std::min(chunk, jobs.size() - begin);
+    RunJobs(options.threads, count, [&](size_t k) {
+      const size_t j = begin + k;
+      found[j] = ScreenView(context, jobs[j].second, jobs[j].first, request.hypotheses,
+                            quick_options, options, memo, &screened[j], &run[j]);
+    });
+    for (size_t j = begin; j < begin + count; ++j) {
+      if (found[j]) best = std::max(best, screened[j].alignment.score);
+    }
+    done = begin + count;
+  }
   if (memo != nullptr) {
-    for (std::vector<PoseMemo::Screened>& job : run) {
-      for (PoseMemo::Screened& entry : job) memo->Add(std::move(entry));
+    for (size_t j = 0; j < done; ++j) {
+      for (PoseMemo::Screened& entry : run[j]) memo->Add(std::move(entry));
     }
   }
   std::vector<PoseCandidate> out;
-  for (size_t j = 0; j < jobs.size(); ++j) {
+  for (size_t j = 0; j < done; ++j) {
     if (found[j]) out.push_back(std::move(screened[j]));
   }
   std::stable_sort(out.begin(), out.end(), [](const PoseCandidate& a, const PoseCandidate& b) {
@@ -542,6 +557,10 @@ RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> c
   return result;
 }
 
+// Views a widened batch screens between its checks of WideningOptions::screen_stop (two
+// per thread on two cores).
+constexpr int kWidenedScreeningChunk = 4;
+
 std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& fine,
                                        double best_score, int views_per_model,
                                        const RecognitionOptions& options, PoseMemo* memo) {
@@ -581,6 +600,8 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
   request.hypotheses.roll_hypotheses =
       std::min(std::max(options.pose.roll_hypotheses, widening.roll_hypotheses),
                options.pose.angle_bins / 2);
+  request.stop_score = widening.screen_stop;
+  request.stop_chunk = kWidenedScreeningChunk;
   // In batches of batch_models models, in the order of their best views: each batch's
   // best hypotheses refined (its share of refine_candidates), and no further batch once
   // one of them verifies as the right model at the right pose would.

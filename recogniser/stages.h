@@ -177,6 +177,11 @@ struct ScreeningRequest {
   int views_per_model = 0;
   bool rank_all_views = false;
   PoseOptions hypotheses;
+  // > 0: the views are screened stop_chunk at a time in the request's order (model by
+  // model, each model's views best-ranked first), and no further chunk once a hypothesis
+  // has scored at least stop_score; 0: all of them.
+  double stop_score = 0.0;
+  int stop_chunk = 4;
 };
 // The first ScreeningOptions::models distinct models of the fine ranking; the budget of
 // models × views_per_model views shared among them (fewer models: more views each).
@@ -184,7 +189,8 @@ ScreeningRequest PlanScreening(const StageContext& context, const FineResult& fi
                                const RecognitionOptions& options);
 // Per model of the request: its views ranked, up to views_per_model of them at least
 // view_separation apart; roll hypotheses and a short ICP on a prefix of each view's
-// cloud; the best hypothesis per view. Sorted by score, best first (stable).
+// cloud; the best hypothesis per view. Sorted by score, best first (stable). With
+// request.stop_score, only the views up to the chunk that reached it.
 // With a memo: short ICPs it holds are looked up, and those run are added to it.
 std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& fine,
                                        const ScreeningRequest& request,
