@@ -490,7 +490,8 @@ NeighbourTable NeighbourGrid::AllKNearest(int k) const {
       const __m512i hi = _mm512_or_si512(
           _mm512_slli_epi64(_mm512_cvtepu32_epi64(_mm512_extracti64x4_epi64(bits, 1)), 32),
           _mm512_cvtepu32_epi64(_mm512_extracti64x4_epi64(index, 1)));
-      const __mmask8 keep_lo = static_cast<__mmask8>(keep), keep_hi = static_cast<__mmask8>(keep >> 8);
+      const __mmask8 keep_lo = static_cast<__mmask8>(keep);
+      const __mmask8 keep_hi = static_cast<__mmask8>(keep >> 8);
       _mm512_storeu_si512(out + n, _mm512_maskz_compress_epi64(keep_lo, lo));
       n += static_cast<size_t>(__builtin_popcount(keep_lo));
       _mm512_storeu_si512(out + n, _mm512_maskz_compress_epi64(keep_hi, hi));

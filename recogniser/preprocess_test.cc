@@ -293,7 +293,8 @@ TEST(VoxelGrid, InBandEqualsTheGridOfTheFilteredPoints) {
   ASSERT_LT(kept.size(), static_cast<size_t>(finite));
   for (float leaf : {0.004f, 0.02f}) {
     std::vector<uint32_t> expected_counts, counts;
-    const std::vector<Vector3f> expected = internal::VoxelGridCentroids(kept, leaf, &expected_counts);
+    const std::vector<Vector3f> expected =
+        internal::VoxelGridCentroids(kept, leaf, &expected_counts);
     int64_t got_finite = -1, got_in_band = -1;
     const std::vector<Vector3f> got = internal::VoxelGridCentroidsInBand(
         points, leaf, min_range * min_range, max_range * max_range, &counts, &got_finite,

@@ -4,6 +4,7 @@
 #include "recogniser/recogniser.h"
 
 #include <algorithm>
+#include <functional>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -78,6 +79,26 @@ class RecogniserTest : public ::testing::Test {
       queries.push_back(std::move(q));
     }
     return queries;
+  }
+
+  // For each of `count` queries: its coarse and fine stages, and options whose widened
+  // search never verifies nor settles for the best so far and screens every view of a
+  // batch, all widened models in one batch — for `test` to change and call WidenSearch.
+  static void ForEachWidenedQuery(
+      int count, uint64_t seed,
+      const std::function<void(StageContext*, const FineResult&, RecognitionOptions*)>& test) {
+    for (const Query& q : MakeQueries(count, seed)) {
+      const ViewDescription query = DescribeQuery(*db_, q.query.cloud);
+      RecognitionOptions options;
+      const CoarseResult coarse = CoarseStage(*db_, query, options);
+      StageContext context(*db_, query, coarse);
+      const FineResult fine = FineStage(&context, options);
+      options.widening.below_score = 1.5;
+      options.widening.continue_below = 1.5;
+      options.widening.batch_models = 0;
+      options.widening.screen_stop = 0.0;
+      test(&context, fine, &options);
+    }
   }
 
   static testing::ScratchDir* scratch_;
@@ -347,21 +368,14 @@ TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
     }
     return models;
   };
-  for (const Query& q : MakeQueries(2, 57)) {
-    const ViewDescription query = DescribeQuery(*db_, q.query.cloud);
-    RecognitionOptions options;
-    const CoarseResult coarse = CoarseStage(*db_, query, options);
-    StageContext context(*db_, query, coarse);
-    const FineResult fine = FineStage(&context, options);
-    // Never verifying (a threshold above any score) and never settling for the best so
-    // far: every batch runs, each screening all its views.
-    options.widening.screen_stop = 0.0;
-    options.widening.below_score = 1.5;
-    options.widening.continue_below = 1.5;
-    options.widening.batch_models = 0;
-    const std::vector<PoseCandidate> at_once = WidenSearch(&context, fine, 0.0, 4, options);
+  // Never verifying (a threshold above any score) and never settling for the best so far:
+  // every batch runs, each screening all its views.
+  ForEachWidenedQuery(2, 57, [&](StageContext* context, const FineResult& fine,
+                                 RecognitionOptions* options_in) {
+    RecognitionOptions& options = *options_in;
+    const std::vector<PoseCandidate> at_once = WidenSearch(context, fine, 0.0, 4, options);
     options.widening.batch_models = 3;
-    const std::vector<PoseCandidate> batched = WidenSearch(&context, fine, 0.0, 4, options);
+    const std::vector<PoseCandidate> batched = WidenSearch(context, fine, 0.0, 4, options);
     const std::set<int> screened = models_of(at_once, false);
     EXPECT_EQ(static_cast<int>(screened.size()),
               std::min(options.widening.models, db_->num_models()));
@@ -373,14 +387,14 @@ TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
     // A best score so far at or above continue_below (here any): the first batch alone,
     // though none verifies.
     options.widening.continue_below = 0.0;
-    const std::set<int> settled = models_of(WidenSearch(&context, fine, 0.0, 4, options), false);
+    const std::set<int> settled = models_of(WidenSearch(context, fine, 0.0, 4, options), false);
     EXPECT_GE(settled.size(), 1u);
     EXPECT_LE(settled.size(), 3u);
     EXPECT_TRUE(std::includes(screened.begin(), screened.end(), settled.begin(), settled.end()));
     options.widening.continue_below = 1.5;
     // A threshold the first batch's refined hypotheses reach: that batch alone.
     options.widening.below_score = 0.05;
-    const std::vector<PoseCandidate> first = WidenSearch(&context, fine, 0.0, 4, options);
+    const std::vector<PoseCandidate> first = WidenSearch(context, fine, 0.0, 4, options);
     const std::set<int> first_models = models_of(first, false);
     EXPECT_GE(first_models.size(), 1u);
     EXPECT_LE(first_models.size(), 3u);
@@ -391,7 +405,7 @@ TEST_F(RecogniserTest, WidenedSearchInBatchesStopsOnceABatchVerifies) {
       if (c.refined) best = std::max(best, c.alignment.score);
     }
     EXPECT_GE(best, 0.05);
-  }
+  });
 }
 
 // A widened batch's screening stops after the chunk of views in which a short-ICP
@@ -404,22 +418,15 @@ TEST_F(RecogniserTest, WidenedScreeningStopsAtTheChunkThatReachesScreenStop) {
     std::sort(views.begin(), views.end());
     return views;
   };
-  for (const Query& q : MakeQueries(2, 61)) {
-    const ViewDescription query = DescribeQuery(*db_, q.query.cloud);
-    RecognitionOptions options;
-    const CoarseResult coarse = CoarseStage(*db_, query, options);
-    StageContext context(*db_, query, coarse);
-    const FineResult fine = FineStage(&context, options);
-    // One batch of every widened model, never verifying.
-    options.widening.below_score = 1.5;
-    options.widening.continue_below = 1.5;
-    options.widening.batch_models = 0;
-    options.widening.screen_stop = 0.0;
-    const std::vector<PoseCandidate> all = WidenSearch(&context, fine, 0.0, 4, options);
+  // One batch of every widened model, never verifying.
+  ForEachWidenedQuery(2, 61, [&](StageContext* context, const FineResult& fine,
+                                 RecognitionOptions* options_in) {
+    RecognitionOptions& options = *options_in;
+    const std::vector<PoseCandidate> all = WidenSearch(context, fine, 0.0, 4, options);
     ASSERT_GT(all.size(), 8u);
     // A stop no hypothesis reaches: every view, the same hypotheses.
     options.widening.screen_stop = 1.5;
-    const std::vector<PoseCandidate> unreached = WidenSearch(&context, fine, 0.0, 4, options);
+    const std::vector<PoseCandidate> unreached = WidenSearch(context, fine, 0.0, 4, options);
     EXPECT_EQ(screened_of(unreached), screened_of(all));
     ASSERT_EQ(unreached.size(), all.size());
     for (size_t i = 0; i < all.size(); ++i) {
@@ -427,14 +434,14 @@ TEST_F(RecogniserTest, WidenedScreeningStopsAtTheChunkThatReachesScreenStop) {
     }
     // A stop the first chunk reaches: its views alone (at most one chunk of 4).
     options.widening.screen_stop = 1e-6;
-    const std::vector<PoseCandidate> first = WidenSearch(&context, fine, 0.0, 4, options);
+    const std::vector<PoseCandidate> first = WidenSearch(context, fine, 0.0, 4, options);
     EXPECT_GE(first.size(), 1u);
     EXPECT_LE(first.size(), 4u);
     const std::vector<std::pair<int, int>> all_views = screened_of(all);
     for (const auto& view : screened_of(first)) {
       EXPECT_TRUE(std::binary_search(all_views.begin(), all_views.end(), view));
     }
-  }
+  });
 }
 
 // The pose stages on several threads (RecognitionOptions::threads) give the same answers as

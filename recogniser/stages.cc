@@ -471,8 +471,8 @@ std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& 
   // All views at once, or stop_chunk at a time until a hypothesis reaches stop_score (the
   // chunks fixed by the order, not by the threads: the same answers for any thread count).
   const bool stop = request.stop_score > 0.0;
-  const size_t chunk =
-      stop ? static_cast<size_t>(std::max(1, request.stop_chunk)) : std::max<size_t>(1, jobs.size());
+  const size_t chunk = stop ? static_cast<size_t>(std::max(1, request.stop_chunk))
+                            : std::max<size_t>(1, jobs.size());
   size_t done = 0;
   double best = 0.0;
   while (done < jobs.size() && !(stop && best >= request.stop_score)) {
