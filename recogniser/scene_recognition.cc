@@ -1642,34 +1642,57 @@ std::vector<double> UnexplainedFractions(const SceneContext& ctx,
   return fractions;
 }
 
-// Remainders: clusters with an accepted hypothesis that leave at least remainder_fraction
-// of their thinned points unexplained (`left`, UnexplainedFractions of `explained`) are
-// recognised again on what is left, once each. True when that added hypotheses.
+// Remainders: a cluster with an accepted hypothesis is recognised again, once, on what the
+// accepted hypotheses leave unexplained (`left`: UnexplainedFractions of `explained`) — on
+// the whole remainder when it is at least remainder_fraction of the cluster's thinned
+// points, and on each connected part of it (the segmentation's clustering distance) that
+// holds at least remainder_part_fraction of the cluster's points, unless that part is
+// nearly the whole remainder already tried. True when that added hypotheses.
 bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>& explained,
                             const std::vector<double>& left, const std::vector<bool>& has_accepted,
                             HypothesisPool* pool) {
   const SceneRecognitionOptions& options = ctx.options;
-  if (options.remainder_fraction <= 0) return false;
+  if (options.remainder_fraction <= 0 && options.remainder_part_fraction <= 0) return false;
   const std::vector<ObjectCluster>& clusters = ctx.clusters;
   const ThinnedScene& scene = ctx.scene;
-  std::vector<std::pair<int, PointCloud>> remainders;  // (cluster, its unexplained points)
+  const double tolerance = options.segmentation.cluster_tolerance > 0
+                               ? options.segmentation.cluster_tolerance
+                               : 2.5 * options.segmentation.cluster_leaf;
+  std::vector<std::pair<int, PointCloud>> remainders;  // (cluster, unexplained points)
   for (size_t c = 0; c < clusters.size(); ++c) {
     // No accepted hypothesis: the whole cluster was tried.
     if (!has_accepted[c] || pool->remainder_tried[c]) continue;
-    if (left[c] < options.remainder_fraction) continue;
+    const bool whole = options.remainder_fraction > 0 && left[c] >= options.remainder_fraction;
+    const bool parts =
+        options.remainder_part_fraction > 0 && left[c] >= options.remainder_part_fraction;
+    if (!whole && !parts) continue;
     PointCloud remainder;
     for (const int i : clusters[c].indices) {
       if (!explained[scene.thinned_of_input[i]]) remainder.points.push_back(ctx.cloud.points[i]);
     }
     if (static_cast<int>(remainder.size()) < options.segmentation.min_cluster_points) continue;
     pool->remainder_tried[c] = 1;
-    remainders.emplace_back(static_cast<int>(c), std::move(remainder));
+    std::vector<PointCloud> pieces;
+    if (parts) {
+      const double min_part =
+          std::max<double>(options.segmentation.min_cluster_points,
+                           options.remainder_part_fraction * clusters[c].indices.size());
+      for (const std::vector<int>& part : GridEuclideanClusters(remainder.points, tolerance)) {
+        if (part.size() < min_part || (whole && part.size() >= 0.9 * remainder.size())) continue;
+        PointCloud piece;
+        piece.points.reserve(part.size());
+        for (const int i : part) piece.points.push_back(remainder.points[i]);
+        pieces.push_back(std::move(piece));
+      }
+    }
+    if (whole) remainders.emplace_back(static_cast<int>(c), std::move(remainder));
+    for (PointCloud& piece : pieces) remainders.emplace_back(static_cast<int>(c), std::move(piece));
   }
   const std::vector<size_t> counts = AddPartHypotheses(ctx, remainders, pool);
   bool added = false;
   for (size_t k = 0; k < remainders.size(); ++k) {
     const auto& [c, remainder] = remainders[k];
-    spdlog::debug("cluster {}: {:.0f}% unexplained, its remainder of {} points gave {} hypotheses",
+    spdlog::debug("cluster {}: {:.0f}% unexplained, a remainder of {} points gave {} hypotheses",
                   c, 100 * left[c], remainder.size(), counts[k]);
     added |= counts[k] > 0;
   }
@@ -1854,6 +1877,9 @@ void SceneRecognitionOptions::Check() const {
   SOPE_CHECK(max_recognition_points >= 100,
              "scene recognition: max recognition points must be ≥ 100, got {}",
              max_recognition_points);
+  SOPE_CHECK(remainder_part_fraction >= 0 && remainder_part_fraction <= 1,
+             "scene recognition: remainder part fraction must be in [0, 1], got {}",
+             remainder_part_fraction);
   SOPE_CHECK(remainder_fraction >= 0 && remainder_fraction <= 1,
              "scene recognition: remainder fraction must be in [0, 1], got {}",
              remainder_fraction);

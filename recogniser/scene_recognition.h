@@ -93,6 +93,19 @@ struct SceneRecognitionOptions {
   // segmentation.min_cluster_points raw points) unexplained is recognised again on the
   // remainder (0: never).
   double remainder_fraction = 0.3;
+  // Each connected part of a cluster's remainder (what its accepted hypotheses leave
+  // unexplained; parts by the segmentation's clustering distance) that holds at least this
+  // fraction of the cluster's points is recognised on its own too, whether or not the whole
+  // remainder reaches remainder_fraction (0: never): an object against a larger one that
+  // explains most of their cluster, its points mixed in the remainder with what the larger
+  // one leaves of its own surface (a banana against a cracker box: 26% of the cluster
+  // unexplained, the banana 21% of it, in one part). YCB tables (20 scenes, seed 1): 73 → 74
+  // of 81 objects found, precision 100% either way (seed 301: 72 of 78 either way);
+  // procedural tables, seeds 301–1101: 367 → 370 of 431 objects of the right class, 4 more
+  // detections (one of a wrong class), clutter 108 of 108 either way. Tried first, parts of
+  // any size (min_cluster_points): what a large object leaves of its own surface was then
+  // accepted as small objects (3 on one scene).
+  double remainder_part_fraction = 0.15;
   // A cluster no hypothesis explains gets, for its first twin_hypotheses hypotheses (by
   // model fit), their half-turn twins about each principal axis of the model, ICP-refined
   // on the cluster (0: none). A view-based search confuses an object with its other side

@@ -46,6 +46,30 @@ bool FitPlane(const std::vector<Eigen::Vector3f>& points, const std::vector<int>
   return true;
 }
 
+// The same components by PCL (kd-tree radius searches): the former method, kept as the
+// benchmark's peer.
+std::vector<std::vector<int>> PclEuclideanClusters(const std::vector<Eigen::Vector3f>& points,
+                                                   double tolerance) {
+  pcl::PointCloud<pcl::PointXYZ>::Ptr thinned(new pcl::PointCloud<pcl::PointXYZ>);
+  thinned->reserve(points.size());
+  for (const Eigen::Vector3f& c : points) thinned->push_back(pcl::PointXYZ(c.x(), c.y(), c.z()));
+  pcl::search::KdTree<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
+  tree->setInputCloud(thinned);
+  pcl::EuclideanClusterExtraction<pcl::PointXYZ> extraction;
+  extraction.setClusterTolerance(tolerance);
+  extraction.setMinClusterSize(1);
+  extraction.setMaxClusterSize(std::numeric_limits<int>::max());
+  extraction.setSearchMethod(tree);
+  extraction.setInputCloud(thinned);
+  std::vector<pcl::PointIndices> clusters;
+  extraction.extract(clusters);
+  std::vector<std::vector<int>> out;
+  for (pcl::PointIndices& c : clusters) out.push_back(std::move(c.indices));
+  return out;
+}
+
+}  // namespace
+
 // Connected components of `points` under "distance ≤ tolerance": union-find over a hash
 // grid of cells `tolerance` wide (a point's neighbours within the tolerance lie in its own
 // cell or the 26 around it). Returns each component's point indices, in increasing order
@@ -112,30 +136,6 @@ std::vector<std::vector<int>> GridEuclideanClusters(const std::vector<Eigen::Vec
   }
   return components;
 }
-
-// The same components by PCL (kd-tree radius searches): the former method, kept as the
-// benchmark's peer.
-std::vector<std::vector<int>> PclEuclideanClusters(const std::vector<Eigen::Vector3f>& points,
-                                                   double tolerance) {
-  pcl::PointCloud<pcl::PointXYZ>::Ptr thinned(new pcl::PointCloud<pcl::PointXYZ>);
-  thinned->reserve(points.size());
-  for (const Eigen::Vector3f& c : points) thinned->push_back(pcl::PointXYZ(c.x(), c.y(), c.z()));
-  pcl::search::KdTree<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
-  tree->setInputCloud(thinned);
-  pcl::EuclideanClusterExtraction<pcl::PointXYZ> extraction;
-  extraction.setClusterTolerance(tolerance);
-  extraction.setMinClusterSize(1);
-  extraction.setMaxClusterSize(std::numeric_limits<int>::max());
-  extraction.setSearchMethod(tree);
-  extraction.setInputCloud(thinned);
-  std::vector<pcl::PointIndices> clusters;
-  extraction.extract(clusters);
-  std::vector<std::vector<int>> out;
-  for (pcl::PointIndices& c : clusters) out.push_back(std::move(c.indices));
-  return out;
-}
-
-}  // namespace
 
 void TableSegmentationOptions::Check() const {
   SOPE_CHECK(std::isfinite(min_range) && min_range >= 0.0,

@@ -95,6 +95,12 @@ struct TableSegmentation {
 // without a plane or with nothing on the table gives no clusters and says why.
 TableSegmentation SegmentTable(const PointCloud& cloud, const TableSegmentationOptions& options = {});
 
+// Connected components of `points` under "distance ≤ tolerance" (metres): union-find over
+// a hash grid of cells `tolerance` wide. Each component's point indices, in increasing
+// order of their first point.
+std::vector<std::vector<int>> GridEuclideanClusters(const std::vector<Eigen::Vector3f>& points,
+                                                    double tolerance);
+
 // The table plane alone (SegmentTable's first step, on the same points): `found` false
 // when there is none. For a cloud of finite points (a triangulated scan); throws
 // sope::Error on invalid options.
