@@ -1671,7 +1671,6 @@ bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>&
       if (!explained[scene.thinned_of_input[i]]) remainder.points.push_back(ctx.cloud.points[i]);
     }
     if (static_cast<int>(remainder.size()) < options.segmentation.min_cluster_points) continue;
-    pool->remainder_tried[c] = 1;
     std::vector<PointCloud> pieces;
     if (parts) {
       const double min_part =
@@ -1685,6 +1684,9 @@ bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>&
         pieces.push_back(std::move(piece));
       }
     }
+    // Nothing tried: a later round may find the remainder grown.
+    if (!whole && pieces.empty()) continue;
+    pool->remainder_tried[c] = 1;
     if (whole) remainders.emplace_back(static_cast<int>(c), std::move(remainder));
     for (PointCloud& piece : pieces) remainders.emplace_back(static_cast<int>(c), std::move(piece));
   }
