@@ -471,7 +471,8 @@ NeighbourTable NeighbourGrid::AllKNearest(int k) const {
     size_t j = 0;
 #if defined(__AVX512F__) && defined(__FMA__)
     // 16 at a time: the same squared distances (the scalar loop's contraction,
-    // fma(dz, dz, fma(dx, dx, dy·dy))) and the kept ones packed in order by compress stores.
+    // fma(dz, dz, fma(dx, dx, dy·dy))), the kept ones packed in order by a register
+    // compress and a full-width store (the + 8 above).
     const __m512 vx = _mm512_set1_ps(qx), vy = _mm512_set1_ps(qy), vz = _mm512_set1_ps(qz);
     const __m512 vmax = _mm512_set1_ps(max_sq);
     const __m512i vself = _mm512_set1_epi32(self);

@@ -1655,9 +1655,7 @@ bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>&
   if (options.remainder_fraction <= 0 && options.remainder_part_fraction <= 0) return false;
   const std::vector<ObjectCluster>& clusters = ctx.clusters;
   const ThinnedScene& scene = ctx.scene;
-  const double tolerance = options.segmentation.cluster_tolerance > 0
-                               ? options.segmentation.cluster_tolerance
-                               : 2.5 * options.segmentation.cluster_leaf;
+  const double tolerance = options.segmentation.ClusterTolerance();
   std::vector<std::pair<int, PointCloud>> remainders;  // (cluster, unexplained points)
   for (size_t c = 0; c < clusters.size(); ++c) {
     // No accepted hypothesis: the whole cluster was tried.

@@ -330,8 +330,7 @@ std::vector<ObjectCluster> ClusterAbovePoints(const PointCloud& cloud,
                                               const std::vector<int>& above,
                                               const TableSegmentationOptions& options) {
   const VoxelGrid grid = ThinToVoxels(cloud, above, options.cluster_leaf);
-  const double tolerance =
-      options.cluster_tolerance > 0 ? options.cluster_tolerance : 2.5 * options.cluster_leaf;
+  const double tolerance = options.ClusterTolerance();
   const std::vector<std::vector<int>> voxel_clusters =
       options.clustering == TableSegmentationOptions::Clustering::kPclKdTree
           ? PclEuclideanClusters(grid.centroids, tolerance)

@@ -59,6 +59,10 @@ struct TableSegmentationOptions {
   // the plane, the clusters and their indices then refer to the kept points. A 1280×720
   // scan of a table holds ~600k points; recognition thins to 4 mm voxels anyway.
   int max_points = 150000;
+  // The clustering distance in effect: cluster_tolerance, or 2.5 × cluster_leaf when 0.
+  double ClusterTolerance() const {
+    return cluster_tolerance > 0 ? cluster_tolerance : 2.5 * cluster_leaf;
+  }
   // Throws sope::Error naming the invalid value.
   void Check() const;
 };

@@ -557,10 +557,6 @@ RefinementResult RefinePoses(StageContext* context, std::vector<PoseCandidate> c
   return result;
 }
 
-// Views a widened batch screens between its checks of WideningOptions::screen_stop (two
-// per thread on two cores).
-constexpr int kWidenedScreeningChunk = 4;
-
 std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& fine,
                                        double best_score, int views_per_model,
                                        const RecognitionOptions& options, PoseMemo* memo) {
@@ -600,8 +596,7 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
   request.hypotheses.roll_hypotheses =
       std::min(std::max(options.pose.roll_hypotheses, widening.roll_hypotheses),
                options.pose.angle_bins / 2);
-  request.stop_score = widening.screen_stop;
-  request.stop_chunk = kWidenedScreeningChunk;
+  request.stop_score = widening.screen_stop;  // stop_chunk: its default
   // In batches of batch_models models, in the order of their best views: each batch's
   // best hypotheses refined (its share of refine_candidates), and no further batch once
   // one of them verifies as the right model at the right pose would.

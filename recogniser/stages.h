@@ -179,7 +179,8 @@ struct ScreeningRequest {
   PoseOptions hypotheses;
   // > 0: the views are screened stop_chunk at a time in the request's order (model by
   // model, each model's views best-ranked first), and no further chunk once a hypothesis
-  // has scored at least stop_score; 0: all of them.
+  // has scored at least stop_score; 0: all of them. 4: two views per thread on two cores
+  // between the checks (the widened search's batches).
   double stop_score = 0.0;
   int stop_chunk = 4;
 };
