@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 #include <unordered_map>
 
@@ -10,6 +11,7 @@
 #include <pcl/segmentation/supervoxel_clustering.h>
 
 #include "core/error.h"
+#include "recogniser/voxel_key.h"
 
 namespace sope {
 
@@ -94,6 +96,115 @@ std::vector<std::vector<int>> ConvexSegments(const PointCloud& points,
                      return a.size() > b.size();
                    });
   return segments;
+}
+
+SeamSplit WeakestSeamSplit(const PointCloud& points,
+                           const std::vector<std::vector<int>>& segments, double cell,
+                           int min_points, int max_segments) {
+  SOPE_CHECK(cell > 0.0 && std::isfinite(cell), "WeakestSeamSplit: cell must be > 0, got {}",
+             cell);
+  SOPE_CHECK(max_segments >= 2 && max_segments <= 16,
+             "WeakestSeamSplit: max_segments must be in [2, 16], got {}", max_segments);
+  SeamSplit best;
+  const int k = std::min<int>(max_segments, static_cast<int>(segments.size()));
+  if (k < 2) return best;
+  // Per cell, the segments with points in it (a bit each).
+  std::unordered_map<uint64_t, uint16_t> labels;
+  const double inverse = 1.0 / cell;
+  std::vector<int64_t> sizes(k, 0);
+  for (int s = 0; s < k; ++s) {
+    sizes[s] = static_cast<int64_t>(segments[s].size());
+    for (const int i : segments[s]) {
+      const Eigen::Vector3f& p = points.points[i];
+      SOPE_CHECK(p.allFinite(), "WeakestSeamSplit: point {} is not finite", i);
+      const uint64_t key = PackVoxelKey(static_cast<int64_t>(std::floor(p.x() * inverse)),
+                                        static_cast<int64_t>(std::floor(p.y() * inverse)),
+                                        static_cast<int64_t>(std::floor(p.z() * inverse)));
+      labels[key] |= static_cast<uint16_t>(1u << s);
+    }
+  }
+  // contact[a][b]: cell pairs (c, d), d = c or a neighbour of c, with a in c and b in d
+  // (each unordered pair of cells once).
+  std::vector<std::vector<double>> contact(k, std::vector<double>(k, 0.0));
+  const auto add_pair = [&](uint16_t in_c, uint16_t in_d) {
+    for (int a = 0; a < k; ++a) {
+      if (!(in_c >> a & 1u)) continue;
+      for (int b = 0; b < k; ++b) {
+        if (b != a && (in_d >> b & 1u)) contact[std::min(a, b)][std::max(a, b)] += 1.0;
+      }
+    }
+  };
+  // Keys differ by a constant per neighbour offset (each coordinate in its own bits, the
+  // cells well inside the key's range).
+  std::vector<uint64_t> forward;  // the 13 neighbours after a cell in key order
+  for (int dx = -1; dx <= 1; ++dx) {
+    for (int dy = -1; dy <= 1; ++dy) {
+      for (int dz = -1; dz <= 1; ++dz) {
+        const uint64_t offset = PackVoxelKey(dx, dy, dz) - PackVoxelKey(0, 0, 0);
+        if (static_cast<int64_t>(offset) > 0) forward.push_back(offset);
+      }
+    }
+  }
+  for (const auto& [key, in_c] : labels) {
+    if (in_c & (in_c - 1)) add_pair(in_c, in_c);  // two segments in one cell
+    for (const uint64_t offset : forward) {
+      const auto it = labels.find(key + offset);
+      if (it != labels.end()) add_pair(in_c, it->second);
+    }
+  }
+  // Connected groups: segment adjacency by any contact.
+  std::vector<uint32_t> adjacent(k, 0);
+  for (int a = 0; a < k; ++a) {
+    for (int b = a + 1; b < k; ++b) {
+      if (contact[a][b] > 0.0) {
+        adjacent[a] |= 1u << b;
+        adjacent[b] |= 1u << a;
+      }
+    }
+  }
+  const auto connected = [&](uint32_t group) {
+    uint32_t reached = group & (~group + 1u);  // its lowest segment
+    while (true) {
+      uint32_t grown = reached;
+      for (int a = 0; a < k; ++a) {
+        if (reached >> a & 1u) grown |= adjacent[a] & group;
+      }
+      if (grown == reached) return reached == group;
+      reached = grown;
+    }
+  };
+  const uint32_t all = (1u << k) - 1u;
+  double best_ratio = std::numeric_limits<double>::infinity();
+  uint32_t best_group = 0;
+  // Groups holding segment 0 (the other side is its complement): each bipartition once.
+  for (uint32_t group = 1; group < all; group += 2) {
+    const uint32_t other = all & ~group;
+    int64_t n[2] = {0, 0};
+    for (int s = 0; s < k; ++s) n[(group >> s & 1u) ? 0 : 1] += sizes[s];
+    const int64_t smaller = std::min(n[0], n[1]);
+    if (smaller < min_points) continue;
+    double across = 0.0;
+    for (int a = 0; a < k; ++a) {
+      for (int b = a + 1; b < k; ++b) {
+        if (((group >> a) & 1u) != ((group >> b) & 1u)) across += contact[a][b];
+      }
+    }
+    const double ratio = across / std::sqrt(static_cast<double>(smaller));
+    if (ratio < best_ratio && connected(group) && connected(other)) {
+      best_ratio = ratio;
+      best_group = group;
+      best.contact = across;
+    }
+  }
+  if (best_group == 0) return best;
+  best.segments[0] = best_group;
+  best.segments[1] = all & ~best_group;
+  for (int s = 0; s < k; ++s) {
+    std::vector<int>& part = best.parts[(best_group >> s & 1u) ? 0 : 1];
+    part.insert(part.end(), segments[s].begin(), segments[s].end());
+  }
+  for (std::vector<int>& part : best.parts) std::sort(part.begin(), part.end());
+  return best;
 }
 
 }  // namespace sope

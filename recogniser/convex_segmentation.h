@@ -9,6 +9,7 @@
 // No PCL in this header.
 #pragma once
 
+#include <cstdint>
 #include <vector>
 
 #include "core/point_cloud.h"
@@ -38,5 +39,25 @@ struct ConvexSegmentationOptions {
 // sope::Error on invalid options or a non-finite point. Deterministic.
 std::vector<std::vector<int>> ConvexSegments(const PointCloud& points,
                                              const ConvexSegmentationOptions& options = {});
+
+// Two touching objects, each of several convex segments (a figurine lying against another:
+// head, ears, limbs), are split by no single segment; they meet in a short seam, whereas
+// the segments of one object share longer ones. The two-way split of `points` along its
+// weakest seam: of the bipartitions of the first max_segments `segments` (ConvexSegments'
+// output, largest first; points of the others are in neither part) into two groups each
+// connected and of at least min_points points, the one whose contact — the pairs of
+// neighbouring cells of side `cell` metres (26-neighbourhood, a cell with itself
+// included) holding points of the one group and of the other — is smallest relative to the
+// square root of the smaller group's points (a seam's length against the size of what it
+// cuts off). Returns the two groups' point indices (increasing), or two empty vectors when
+// no bipartition qualifies (fewer than 2 segments, or none of that size). Deterministic.
+struct SeamSplit {
+  std::vector<int> parts[2];
+  uint32_t segments[2] = {0, 0};  // each part's segments, a bit each (segment 0 in part 0)
+  double contact = 0.0;           // cell pairs across the seam
+};
+SeamSplit WeakestSeamSplit(const PointCloud& points,
+                           const std::vector<std::vector<int>>& segments, double cell,
+                           int min_points, int max_segments = 10);
 
 }  // namespace sope

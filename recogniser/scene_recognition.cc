@@ -1270,15 +1270,36 @@ bool AddSplitHypotheses(const SceneContext& ctx, const std::vector<bool>& to_spl
     spdlog::debug("cluster {}: {} convex segments ({} points, largest {})", c, segments.size(),
                   points.size(), segments.empty() ? 0 : segments[0].size());
     if (segments.size() < 2) continue;
+    const auto add_part = [&](const std::vector<int>& indices) {
+      parts.emplace_back();
+      parts.back().first = static_cast<int>(c);
+      PointCloud& part = parts.back().second;
+      part.points.reserve(indices.size());
+      for (const int i : indices) part.points.push_back(points.points[i]);
+    };
+    uint32_t added_segments = 0;  // a bit each
     for (size_t k = 0; k < segments.size() && static_cast<int>(k) < options.split_segments; ++k) {
       const std::vector<int>& segment = segments[k];
       if (static_cast<int>(segment.size()) < options.segmentation.min_cluster_points) break;
       if (segment.size() > 0.9 * points.size()) continue;  // the cluster was tried whole
-      parts.emplace_back();
-      parts.back().first = static_cast<int>(c);
-      PointCloud& part = parts.back().second;
-      part.points.reserve(segment.size());
-      for (const int i : segment) part.points.push_back(points.points[i]);
+      add_part(segment);
+      if (k < 32) added_segments |= 1u << k;
+    }
+    if (options.seam_split_fraction > 0.0 && segments.size() >= 3) {
+      const int min_points =
+          std::max(options.segmentation.min_cluster_points,
+                   static_cast<int>(std::ceil(options.seam_split_fraction * points.size())));
+      const SeamSplit seam =
+          WeakestSeamSplit(points, segments, options.split.voxel_resolution, min_points);
+      for (int side = 0; side < 2; ++side) {
+        const uint32_t group = seam.segments[side];
+        if (group == 0 || (__builtin_popcount(group) == 1 && (group & added_segments))) continue;
+        add_part(seam.parts[side]);
+      }
+      if (seam.segments[0] != 0) {
+        spdlog::debug("cluster {}: weakest seam ({} cell pairs) splits it {} + {} points", c,
+                      seam.contact, seam.parts[0].size(), seam.parts[1].size());
+      }
     }
   }
   bool added = false;
@@ -1886,6 +1907,9 @@ void SceneRecognitionOptions::Check() const {
   split.Check();
   SOPE_CHECK(split_segments >= 0, "scene recognition: split segments must be ≥ 0, got {}",
              split_segments);
+  SOPE_CHECK(seam_split_fraction >= 0 && seam_split_fraction <= 0.5,
+             "scene recognition: seam split fraction must be in [0, 0.5], got {}",
+             seam_split_fraction);
   SOPE_CHECK(backdrop_planar_fraction >= 0 && backdrop_planar_fraction <= 1,
              "scene recognition: backdrop planar fraction must be in [0, 1], got {}",
              backdrop_planar_fraction);

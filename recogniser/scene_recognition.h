@@ -147,6 +147,11 @@ struct SceneRecognitionOptions {
   // recognised alone (0: never): touching objects clustered together, whose mixed
   // points no single view matches.
   int split_segments = 4;
+  // Such a cluster of at least three segments is also split in two along its weakest seam
+  // (WeakestSeamSplit, recogniser/convex_segmentation.h), each side of at least this
+  // fraction of its points, and both sides are recognised alone (0: never): two touching
+  // objects of several convex segments each (figurines), whom no one segment separates.
+  double seam_split_fraction = 0.2;
   // A cluster no hypothesis explains is also recognised joined with each cluster that
   // comes within join_distance of it (metres; 0: never): one object cut in two by a
   // shadow (a mug's handle apart from its body) or by another object in front of it.

@@ -1050,6 +1050,56 @@ TEST(ConvexSegmentation, SplitsTouchingSpheresAtTheirSeamAndKeepsOneWhole) {
                                           {"seed resolution"});
 }
 
+// Two "objects" of flat strips (segments), 2 mm apart within each: A, three strips side
+// by side (seams 6 cm long), and B, two strips, touching A only at one corner. The weakest
+// seam separates A from B exactly; too large a minimum, or one segment, gives no split.
+TEST(ConvexSegmentation, WeakestSeamSplitsTwoObjectsOfSeveralSegments) {
+  PointCloud points;
+  std::vector<std::vector<int>> segments;
+  // A strip of w × 6 cm at (x0, y0), depth z, as one segment.
+  const auto strip = [&](float x0, float y0, float w) {
+    segments.emplace_back();
+    for (float x = x0; x < x0 + w - 1e-6f; x += 0.002f) {
+      for (float y = y0; y < y0 + 0.06f - 1e-6f; y += 0.002f) {
+        segments.back().push_back(static_cast<int>(points.size()));
+        points.points.emplace_back(x, y, 0.7f);
+      }
+    }
+  };
+  strip(0.0f, 0.0f, 0.03f);    // A: the largest segment first
+  strip(0.03f, 0.0f, 0.02f);   // A
+  strip(0.05f, 0.06f, 0.02f);  // B, touching A's strip 1 at its corner only
+  strip(-0.02f, 0.0f, 0.02f);  // A
+  strip(0.07f, 0.06f, 0.02f);  // B
+  const SeamSplit seam = WeakestSeamSplit(points, segments, 0.004, 200);
+  ASSERT_NE(seam.segments[0], 0u);
+  EXPECT_EQ(seam.segments[0], 0b01011u);  // A: segments 0, 1, 3 (segment 0 always in part 0)
+  EXPECT_EQ(seam.segments[1], 0b10100u);  // B: segments 2, 4
+  std::vector<int> a, b;
+  for (const int s : {0, 1, 3}) a.insert(a.end(), segments[s].begin(), segments[s].end());
+  for (const int s : {2, 4}) b.insert(b.end(), segments[s].begin(), segments[s].end());
+  std::sort(a.begin(), a.end());
+  std::sort(b.begin(), b.end());
+  EXPECT_EQ(seam.parts[0], a);
+  EXPECT_EQ(seam.parts[1], b);
+  EXPECT_GT(seam.contact, 0.0);
+  // The corner contact is a few cell pairs; A's own seams (6 cm each) many more.
+  EXPECT_LT(seam.contact, 20.0);
+
+  // B holds 600 points: a minimum above that leaves only splits inside A, by a long seam
+  // (still a split); above half the points, none.
+  const SeamSplit larger = WeakestSeamSplit(points, segments, 0.004, 700);
+  EXPECT_NE(larger.segments[0], 0u);
+  EXPECT_GT(larger.contact, seam.contact);
+  const SeamSplit none = WeakestSeamSplit(points, segments, 0.004, 1 + points.size() / 2);
+  EXPECT_EQ(none.segments[0], 0u);
+  EXPECT_TRUE(none.parts[0].empty() && none.parts[1].empty());
+  const SeamSplit single = WeakestSeamSplit(points, {segments[0]}, 0.004, 10);
+  EXPECT_EQ(single.segments[0], 0u);
+  testing::ExpectThrowsWithMessage<Error>(
+      [&] { WeakestSeamSplit(points, segments, 0.0, 10); }, {"cell must be > 0"});
+}
+
 // A square facing the camera, `size` metres wide, centred at (x, 0, z), sampled every
 // 2 mm, normals towards the camera.
 PointCloud Square(float x, float z, float size) {
