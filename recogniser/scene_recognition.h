@@ -142,7 +142,8 @@ struct SceneRecognitionOptions {
   int roll_steps = 6;
   double roll_min_class_probability = 0.15;
   double roll_min_asymmetry = 0.02;
-  // A cluster no hypothesis explains is split along its concave seams
+  // A cluster no hypothesis explains (or with a remainder of at least remainder_fraction)
+  // is split along its concave seams
   // (recogniser/convex_segmentation.h) and its split_segments largest segments are
   // recognised alone (0: never): touching objects clustered together, whose mixed
   // points no single view matches.
