@@ -1098,6 +1098,9 @@ TEST(ConvexSegmentation, WeakestSeamSplitsTwoObjectsOfSeveralSegments) {
   EXPECT_EQ(single.segments[0], 0u);
   testing::ExpectThrowsWithMessage<Error>(
       [&] { WeakestSeamSplit(points, segments, 0.0, 10); }, {"cell must be > 0"});
+  SceneRecognitionOptions options;
+  options.seam_split_fraction = 0.6;  // both sides cannot hold more than half
+  testing::ExpectThrowsWithMessage<Error>([&] { options.Check(); }, {"seam split fraction"});
 }
 
 // A square facing the camera, `size` metres wide, centred at (x, 0, z), sampled every
