@@ -218,12 +218,12 @@ std::vector<Eigen::Vector3f> VoxelGridCentroidsInBand(const std::vector<Eigen::V
                                                       std::vector<uint32_t>* counts,
                                                       int64_t* finite, int64_t* in_band) {
   int64_t finite_points = 0, band_points = 0;
+  const SquaredRangeBand band{min_sq, max_sq};
   std::vector<Eigen::Vector3f> centroids =
       VoxelCentroidsOf(points, leaf, counts, [&](const Eigen::Vector3f& p) {
-        if (!(std::isfinite(p.x()) && std::isfinite(p.y()) && std::isfinite(p.z()))) return false;
+        if (!IsFinitePoint(p)) return false;
         ++finite_points;
-        const double sq = p.cast<double>().squaredNorm();
-        if (!(sq >= min_sq && sq <= max_sq)) return false;
+        if (!band.Contains(p)) return false;
         ++band_points;
         return true;
       });

@@ -11,6 +11,7 @@
 // results are exact (ties broken by point index) and deterministic.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -18,6 +19,20 @@
 
 namespace sope {
 namespace internal {
+
+// All three coordinates finite.
+inline bool IsFinitePoint(const Eigen::Vector3f& p) {
+  return std::isfinite(p.x()) && std::isfinite(p.y()) && std::isfinite(p.z());
+}
+
+// A range band by squared distance from the origin, in double: min_sq ≤ ‖p‖² ≤ max_sq.
+struct SquaredRangeBand {
+  double min_sq = 0.0, max_sq = 0.0;
+  bool Contains(const Eigen::Vector3f& p) const {
+    const double sq = p.cast<double>().squaredNorm();
+    return sq >= min_sq && sq <= max_sq;
+  }
+};
 
 // Voxel-grid thinning as pcl::VoxelGrid (centroid per occupied voxel): voxel of p is
 // floor(p · (1/leaf)) per axis (float arithmetic, as PCL), output ordered as PCL orders it

@@ -13,10 +13,6 @@
 namespace sope {
 namespace {
 
-bool IsFinite(const Eigen::Vector3f& p) {
-  return std::isfinite(p.x()) && std::isfinite(p.y()) && std::isfinite(p.z());
-}
-
 // Largest |coordinate| / leaf the packed voxel keys hold (cloud_filters.cc).
 constexpr double kMaxLeavesFromOrigin = double(1 << 20) - 2.0;
 
@@ -70,16 +66,9 @@ std::string PreprocessSummary::BriefReport() const {
 namespace {
 
 // The range band on ‖p‖ (thesis's conditional filter), compared on squared norms.
-struct RangeBand {
-  double min_sq, max_sq;
-  explicit RangeBand(const PreprocessOptions& options)
-      : min_sq(options.min_range * options.min_range),
-        max_sq(options.max_range * options.max_range) {}
-  bool Contains(const Eigen::Vector3f& p) const {
-    const double sq = p.cast<double>().squaredNorm();
-    return sq >= min_sq && sq <= max_sq;
-  }
-};
+internal::SquaredRangeBand RangeBand(const PreprocessOptions& options) {
+  return {options.min_range * options.min_range, options.max_range * options.max_range};
+}
 
 // Steps 1 and 2: the finite points inside the range band (the input normals and colours
 // are not used: normals are re-estimated after thinning so that database and query clouds
@@ -91,7 +80,7 @@ std::vector<Eigen::Vector3f> InRangeVoxels(const PointCloud& cloud,
                                            const PreprocessOptions& options,
                                            PreprocessSummary* summary,
                                            std::vector<uint32_t>* voxel_counts) {
-  const RangeBand band(options);
+  const internal::SquaredRangeBand band = RangeBand(options);
   std::vector<Eigen::Vector3f> points;
   if (options.voxel_leaf > 0.0) {
     points = internal::VoxelGridCentroidsInBand(
@@ -100,7 +89,7 @@ std::vector<Eigen::Vector3f> InRangeVoxels(const PointCloud& cloud,
   } else {
     points.reserve(cloud.size());
     for (const Eigen::Vector3f& p : cloud.points) {
-      if (!IsFinite(p)) continue;
+      if (!internal::IsFinitePoint(p)) continue;
       ++summary->finite_points;
       if (band.Contains(p)) points.push_back(p);
     }
@@ -120,7 +109,7 @@ std::vector<Eigen::Vector3f> InRangeVoxels(const PointCloud& cloud,
   if (options.voxel_leaf > 0.0) {
     in_range.reserve(static_cast<size_t>(summary->in_range_points));
     for (const Eigen::Vector3f& p : cloud.points) {
-      if (IsFinite(p) && band.Contains(p)) in_range.push_back(p);
+      if (internal::IsFinitePoint(p) && band.Contains(p)) in_range.push_back(p);
     }
   } else {
     in_range.swap(points);
