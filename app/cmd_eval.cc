@@ -67,10 +67,6 @@ int RunTableEval(const std::string& db_path,
     table_options.meshes = flags.meshes;
     if (table_options.meshes.empty()) {
       for (const ModelRecord& model : db->models()) {
-        SOPE_CHECK(std::abs(model.scale - 1.0) < 1e-9,
-                   "--table: model {} was scaled by {} in the database; table scenes need "
-                   "meshes in metres (or use --procedural)",
-                   model.name, model.scale);
         table_options.meshes.push_back(model.source_path);
       }
     }

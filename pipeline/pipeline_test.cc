@@ -19,8 +19,10 @@
 
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/mesh.h"
 #include "decoder/decoder.h"
 #include "pipeline/scan_source.h"
+#include "pipeline/table_eval.h"
 #include "recogniser/pose_metrics.h"
 #include "recogniser/segmentation.h"
 #include "recogniser/tools/database_builder.h"
@@ -543,6 +545,41 @@ TEST(TableScan, FillsOnlyNearWhatStandsOnTheTable) {
   const ScanResult same = ScanTableFrameSet(scan.frames, triangulator, no_consistency, segmentation);
   ASSERT_EQ(usual.triangulation.cloud.size(), same.triangulation.cloud.size());
   EXPECT_TRUE(usual.triangulation.cloud.points == same.triangulation.cloud.points);
+}
+
+// `sope eval --table` on a database of meshes in other units than metres (millimetres):
+// each scene shows a mesh scaled as build-db scaled it, so the database's model lies on the
+// table at its size and is found there (before, the command refused such a database, and
+// the scenes would have kept the file's units: objects a thousand times too large).
+TEST(TableEvaluation, MeshesInMillimetresAreScaledAsTheDatabaseScaledThem) {
+  const testing::ScratchDir scratch;
+  const std::string models = scratch.File("models");
+  fs::create_directories(models);
+  std::vector<std::string> meshes;
+  for (const auto& [cls, seed] : {std::pair{ObjectClass::kMug, 3}, {ObjectClass::kBottle, 5}}) {
+    TriangleMesh mesh = MakeObject(cls, seed);
+    mesh.Transform(1000.0, Eigen::Vector3d::Zero());  // millimetres
+    meshes.push_back(models + "/" + ToString(cls) + ".obj");
+    WriteMesh(meshes.back(), mesh);
+  }
+  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
+  db_options.views_per_model = 60;
+  WriteDatabase(scratch.File("mm.sopedb"), BuildDatabase(models, db_options));
+  const std::unique_ptr<Database> db = Database::Open(scratch.File("mm.sopedb"));
+  for (const ModelRecord& model : db->models()) {
+    EXPECT_LT(model.scale, 0.01) << model.name << ": the database should have scaled it";
+  }
+  TableEvalOptions options;
+  options.meshes = meshes;
+  options.scenes = 2;
+  options.min_objects = options.max_objects = 2;
+  options.clutter = 0;
+  const TableEvalSummary summary = RunTableEvaluation(*db, options, "");
+  std::printf("%s", summary.Markdown().c_str());
+  EXPECT_EQ(summary.known, 4);
+  // Found, of the right model, posed within ADD-S < 10% of the (scaled) diameter.
+  EXPECT_EQ(summary.correct, 4);
+  EXPECT_EQ(summary.detections, 4);
 }
 
 TEST(PipelineOptions, BadValuesAreNamed) {

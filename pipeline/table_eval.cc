@@ -64,6 +64,8 @@ ScanReport ScanMeshScene(const Database& database, const TableEvalOptions& optio
   for (int i = 0; i < count; ++i) {
     TableObjectSpec spec;
     spec.spec = pool[i];
+    // Scaled as build-db scales it (kept when plausible in metres): the database's model.
+    spec.size = kSizeAsDatabase;
     source_options.table.objects.push_back(spec);
   }
   VirtualTableSource source(source_options);
