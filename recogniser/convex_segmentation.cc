@@ -110,17 +110,14 @@ SeamSplit WeakestSeamSplit(const PointCloud& points,
   if (k < 2) return best;
   // Per cell, the segments with points in it (a bit each).
   std::unordered_map<uint64_t, uint16_t> labels;
-  const double inverse = 1.0 / cell;
+  const float inverse = static_cast<float>(1.0 / cell);
   std::vector<int64_t> sizes(k, 0);
   for (int s = 0; s < k; ++s) {
     sizes[s] = static_cast<int64_t>(segments[s].size());
     for (const int i : segments[s]) {
       const Eigen::Vector3f& p = points.points[i];
       SOPE_CHECK(p.allFinite(), "WeakestSeamSplit: point {} is not finite", i);
-      const uint64_t key = PackVoxelKey(static_cast<int64_t>(std::floor(p.x() * inverse)),
-                                        static_cast<int64_t>(std::floor(p.y() * inverse)),
-                                        static_cast<int64_t>(std::floor(p.z() * inverse)));
-      labels[key] |= static_cast<uint16_t>(1u << s);
+      labels[VoxelKeyOf(p, inverse)] |= static_cast<uint16_t>(1u << s);
     }
   }
   // contact[a][b]: cell pairs (c, d), d = c or a neighbour of c, with a in c and b in d

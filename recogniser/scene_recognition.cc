@@ -32,18 +32,9 @@
 namespace sope {
 namespace {
 
-// The integer coordinates of the cell of `p` (cells 1 / inv_leaf wide), and their packed
-// key (recogniser/voxel_key.h).
-Eigen::Matrix<int64_t, 3, 1> VoxelCoords(const Eigen::Vector3f& p, float inv_leaf) {
-  return {static_cast<int64_t>(std::floor(p.x() * inv_leaf)),
-          static_cast<int64_t>(std::floor(p.y() * inv_leaf)),
-          static_cast<int64_t>(std::floor(p.z() * inv_leaf))};
-}
+// The packed key of integer cell coordinates (recogniser/voxel_key.h).
 uint64_t PackVoxel(const Eigen::Matrix<int64_t, 3, 1>& c) {
   return PackVoxelKey(c.x(), c.y(), c.z());
-}
-uint64_t VoxelKey(const Eigen::Vector3f& p, float inv_leaf) {
-  return PackVoxel(VoxelCoords(p, inv_leaf));
 }
 
 // Scene points to explain: the clusters' points thinned to one per voxel (the first), each
@@ -62,7 +53,7 @@ ThinnedScene ThinClusters(const PointCloud& cloud, const std::vector<ObjectClust
   std::unordered_map<uint64_t, int> voxel;
   for (size_t c = 0; c < clusters.size(); ++c) {
     for (const int i : clusters[c].indices) {
-      auto [it, inserted] = voxel.emplace(VoxelKey(cloud.points[i], inv_leaf),
+      auto [it, inserted] = voxel.emplace(VoxelKeyOf(cloud.points[i], inv_leaf),
                                           static_cast<int>(scene.points.size()));
       if (inserted) {
         scene.points.points.push_back(cloud.points[i]);
@@ -740,7 +731,7 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
     if (l < 0) continue;
     const Eigen::Vector3f& p = scene.points.points[j];
     box[l].extend(p);
-    const uint64_t key = VoxelKey(p, 1.0f / coarse) * 1000003u + static_cast<uint64_t>(l);
+    const uint64_t key = VoxelKeyOf(p, 1.0f / coarse) * 1000003u + static_cast<uint64_t>(l);
     if (taken.emplace(key, 0).second) sample[l].push_back(p);
   }
   const float gap2 = static_cast<float>(options.join_gap * options.join_gap);
@@ -1983,7 +1974,7 @@ const PointCloud& SceneRecogniser::ModelSurface(int model, double leaf) const {
     for (int v = record.first_view; v < record.first_view + record.num_views; ++v) {
       database_.ViewCloud(v, &view);
       for (size_t i = 0; i < view.size(); ++i) {
-        if (!voxel.emplace(VoxelKey(view.points[i], inv_leaf), 0).second) continue;
+        if (!voxel.emplace(VoxelKeyOf(view.points[i], inv_leaf), 0).second) continue;
         surface->points.push_back(view.points[i]);
         surface->normals.push_back(view.HasNormals() ? view.normals[i]
                                                      : Eigen::Vector3f::UnitZ().eval());

@@ -305,9 +305,7 @@ VoxelGrid ThinToVoxels(const PointCloud& cloud, const std::vector<int>& indices,
   std::vector<int> voxel_count;
   for (size_t k = 0; k < indices.size(); ++k) {
     const Eigen::Vector3f& p = cloud.points[indices[k]];
-    const uint64_t key = PackVoxelKey(static_cast<int64_t>(std::floor(p.x() * inv_leaf)),
-                                      static_cast<int64_t>(std::floor(p.y() * inv_leaf)),
-                                      static_cast<int64_t>(std::floor(p.z() * inv_leaf)));
+    const uint64_t key = VoxelKeyOf(p, inv_leaf);
     auto [it, inserted] = voxel_of_key.emplace(key, static_cast<int>(voxel_sum.size()));
     if (inserted) {
       voxel_sum.emplace_back(Eigen::Vector3d::Zero());
