@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdio>
 #include <sstream>
+#include <utility>
 
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
@@ -61,6 +62,34 @@ std::vector<double> ParseNumbers(const std::string& text, const std::string& opt
     SOPE_CHECK(std::isfinite(numbers.back()), "{} '{}': numbers must be finite", option, text);
   }
   return numbers;
+}
+
+double ParseMeshUnit(const std::string& text, const std::string& option) {
+  static constexpr std::pair<const char*, double> kUnits[] = {
+      {"auto", 0.0}, {"m", 1.0}, {"cm", 0.01}, {"mm", 0.001}, {"in", 0.0254}};
+  for (const auto& [name, metres] : kUnits) {
+    if (text == name) return metres;
+  }
+  double metres = 0.0;
+  try {
+    size_t used = 0;
+    metres = std::stod(text, &used);
+    SOPE_CHECK(used == text.size(), "trailing characters");
+  } catch (const std::exception&) {
+    SOPE_THROW("{} '{}': expected auto, m, cm, mm, in or metres per mesh unit (e.g. 0.001)",
+               option, text);
+  }
+  SOPE_CHECK(std::isfinite(metres) && metres > 0.0 && metres <= 1000.0,
+             "{} '{}': metres per mesh unit must be in (0, 1000]", option, text);
+  return metres;
+}
+
+void AddMeshUnitFlag(CLI::App& app, std::string* text) {
+  app.add_option("--units", *text,
+                 "Unit of the mesh files: m, cm, mm, in, or metres per unit (e.g. 0.001); "
+                 "auto (default) keeps a mesh whose bounding-box diagonal is 0.02-0.75 "
+                 "units as metres and scales any other to a 0.25 m diagonal")
+      ->capture_default_str();
 }
 
 Rigid3d ParsePose(const std::string& text, const std::string& option) {

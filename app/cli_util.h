@@ -19,6 +19,14 @@ Rigid3d ParsePose(const std::string& text, const std::string& option);
 // Comma-separated numbers.
 std::vector<double> ParseNumbers(const std::string& text, const std::string& option);
 
+// The unit of mesh files, as metres per file unit: "auto" → 0 (the size rule of
+// core/object_size.h guesses), "m" 1, "cm" 0.01, "mm" 0.001, "in" 0.0254, or a positive
+// number (metres per unit). Throws sope::Error naming `option` otherwise.
+double ParseMeshUnit(const std::string& text, const std::string& option);
+// Adds `--units` (bound to *text, default "auto") with the help every mesh-reading command
+// shares.
+void AddMeshUnitFlag(CLI::App& app, std::string* text);
+
 // Parses argv with CLI11. Returns -1 to continue, or the exit code to return now: 0 after
 // --help, 2 after a usage error (unknown flag, missing value, malformed number), printed as
 // one line "<app name>: error: <what>" like every other error.

@@ -1,5 +1,6 @@
 // sope build-db --models DIR --out DB.sopedb [--views N] [--layout thesis|fibonacci]
 //               [--hash lsh|sh|mlh|bre|itq] [--bits B] [--preset sope|thesis]
+//               [--units auto|m|cm|mm|in|METRES]
 #include <spdlog/spdlog.h>
 
 #include "app/cli_util.h"
@@ -25,10 +26,11 @@ int RunBuildDb(int argc, char** argv) {
                "class): every model is rendered from many viewpoints by an ideal depth "
                "camera, each view described like a query, the descriptors hashed. Meshes "
                "whose size is implausible in metres (bounding-box diagonal outside "
-               "[0.02, 0.75]) are scaled to a 0.25 m diagonal. Unreadable meshes are reported "
-               "and skipped.",
+               "[0.02, 0.75]) are scaled to a 0.25 m diagonal, unless --units gives the files' "
+               "unit (e.g. mm for BOP models: the real objects' size). Unreadable meshes are "
+               "reported and skipped.",
                "sope build-db"};
-  std::string models_dir, out, preset = "sope";
+  std::string models_dir, out, preset = "sope", units = "auto";
   int threads = 0;
   cli::LoggingFlags logging;
   app.add_option("--models", models_dir, "Models directory")->required();
@@ -43,6 +45,7 @@ int RunBuildDb(int argc, char** argv) {
   DatabaseOptions given;
   const std::vector<cli::BoundFlag<DatabaseOptions>> bound =
       cli::AddOptionFlags(app, &given, DatabaseOptions::Fields());
+  cli::AddMeshUnitFlag(app, &units);
   app.add_option("--threads", threads, "Worker threads describing views (0 = all cores)")
       ->capture_default_str();
   logging.Add(app);
@@ -74,7 +77,8 @@ int RunBuildDb(int argc, char** argv) {
   }
   SOPE_CHECK(threads >= 0 && threads <= kMaxThreads, "--threads must be in [0, {}], got {}",
              kMaxThreads, threads);
-  const DatabaseOptions options = ResolveDatabaseOptions(choices);
+  DatabaseOptions options = ResolveDatabaseOptions(choices);
+  options.size.mesh_unit = cli::ParseMeshUnit(units, "--units");
 
   const std::vector<ModelSource> models = ListModels(models_dir);
   spdlog::info("{} meshes in {}; {} {} viewpoints each, {} {}-bit codes", models.size(),

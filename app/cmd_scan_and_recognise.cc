@@ -176,6 +176,10 @@ std::unique_ptr<ScanSource> MakeSource(const Flags& flags, const Database& db,
     VirtualTableSourceOptions options;
     options.calibration = calibration;
     options.table = flags.table.ToOptions();
+    // --mesh objects scaled as the database scaled them (build-db --units).
+    for (TableObjectSpec& object : options.table.objects) {
+      object.mesh_unit = db.options().size.mesh_unit;
+    }
     options.table.backdrop = !flags.no_backdrop;
     options.objects = flags.table.objects;
     options.classes = scenes.classes;

@@ -1,4 +1,5 @@
-// sope simulate --mesh FILE [--object-pose rx,ry,rz,tx,ty,tz] [--rig RIG.yaml] --out DIR
+// sope simulate --mesh FILE [--object-pose rx,ry,rz,tx,ty,tz] [--units mm] [--rig RIG.yaml]
+//                --out DIR
 // sope simulate --board COLSxROWSxSQUARE_M --views N [--rig RIG.yaml] --out DIR
 // sope simulate --table --mesh A --mesh B ... [--seed N] [--clutter K] [--no-backdrop] --out DIR
 #include <cmath>
@@ -70,7 +71,7 @@ struct SensorFlags {
   }
 };
 
-int RunTableSimulation(const std::vector<std::string>& meshes, double size,
+int RunTableSimulation(const std::vector<std::string>& meshes, double size, double mesh_unit,
                        const cli::TableFlags& flags, bool no_backdrop, const SensorOptions& sensor,
                        const RigCalibration& calibration, const PatternOptions& patterns,
                        bool allow_empty, const std::string& out) {
@@ -80,6 +81,7 @@ int RunTableSimulation(const std::vector<std::string>& meshes, double size,
     TableObjectSpec object;
     object.spec = spec;
     object.size = size >= 0 ? size : kSizeAsDatabase;
+    object.mesh_unit = mesh_unit;
     options.objects.push_back(object);
   }
   options.backdrop = !no_backdrop;
@@ -130,6 +132,7 @@ struct SingleObjectScene {
   std::string mesh_path;
   std::string pose_text;
   std::optional<double> size;
+  double mesh_unit = 0.0;  // metres per mesh unit; 0 guesses (core/object_size.h)
   std::optional<double> backdrop;
 };
 
@@ -160,11 +163,14 @@ int RunSingleObjectSimulation(const SingleObjectScene& object, const SensorOptio
   placement.center_in_cam = pose.translation;
   if (object.size) {
     placement.size = *object.size;
+  } else if (object.mesh_unit > 0.0) {
+    placement.size = mesh_diagonal * object.mesh_unit;
   } else {
     const double diagonal = mesh.BoundingDiagonal();
     if (!IsPlausibleDiagonal(diagonal)) {
       placement.size = kDefaultObjectSize;
-      spdlog::info("mesh diagonal is {:.3g} units: scaling it to {} m (use --object-size)",
+      spdlog::info("mesh diagonal is {:.3g} units: scaling it to {} m (use --units or "
+                   "--object-size)",
                    diagonal, kDefaultObjectSize);
     }
   }
@@ -198,7 +204,7 @@ int RunSimulate(int argc, char** argv) {
                "DIR/calibration_true.yaml and DIR/gt_board_poses.json.",
                "sope simulate"};
   std::vector<std::string> mesh_paths;
-  std::string pose_text = "0,0,0,0,0,0.6", rig_path, out;
+  std::string pose_text = "0,0,0,0,0,0.6", rig_path, out, units = "auto";
   double size = -1.0, backdrop = 0.0;
   SensorFlags sensor_flags;
   SensorOptions& sensor = sensor_flags.sensor;
@@ -233,6 +239,7 @@ int RunSimulate(int argc, char** argv) {
       "--object-size", size,
       "Scale the mesh to this bounding-box diagonal, metres (default: keep metres when "
       "plausible, else 0.25)");
+  cli::AddMeshUnitFlag(app, &units);
   CLI::Option* backdrop_option =
       app.add_option("--backdrop", backdrop, "Add a matte backdrop plane at this depth, metres");
   bool allow_empty = false;
@@ -248,6 +255,9 @@ int RunSimulate(int argc, char** argv) {
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
 
+  const double mesh_unit = cli::ParseMeshUnit(units, "--units");
+  SOPE_CHECK(mesh_unit == 0.0 || size_option->count() == 0,
+             "--units and --object-size exclude each other (one sets the mesh's size)");
   const RigCalibration calibration =
       rig_path.empty() ? DefaultRigCalibration() : ReadRigCalibration(rig_path);
   const PatternOptions patterns =
@@ -263,7 +273,7 @@ int RunSimulate(int argc, char** argv) {
                    (std::isfinite(size) && size > 0.0 && size <= kMaxPlausibleDiagonal),
                "--object-size must be in (0, {}] m for a table, got {}", kMaxPlausibleDiagonal,
                size);
-    return RunTableSimulation(mesh_paths, size, table_flags, no_backdrop,
+    return RunTableSimulation(mesh_paths, size, mesh_unit, table_flags, no_backdrop,
                               sensor_flags.TableOptions(),
                               calibration, patterns, allow_empty, out);
   }
@@ -275,6 +285,7 @@ int RunSimulate(int argc, char** argv) {
   object.mesh_path = mesh_paths[0];
   object.pose_text = pose_text;
   if (size_option->count() > 0) object.size = size;
+  object.mesh_unit = mesh_unit;
   if (backdrop_option->count() > 0) object.backdrop = backdrop;
   return RunSingleObjectSimulation(object, sensor, calibration, patterns, allow_empty, out);
 }

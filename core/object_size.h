@@ -6,6 +6,10 @@
 // mesh's database model (with simulate's former 1.5 m bound, beetle, homer, cheburashka
 // and rocker-arm — 1.0–1.3 units — were scanned at 1 m but stored at 0.25 m). 0.75 m is
 // the largest object a tabletop rig working at 0.4–0.8 m sees whole.
+//
+// The rule guesses: a mesh in millimetres is scaled to 0.25 m whatever its real size, so a
+// database of BOP-style models (millimetres) would not match the real objects a rig scans.
+// A mesh unit given by the user (`--units mm`: metres per file unit) replaces the guess.
 #pragma once
 
 namespace sope {
@@ -17,6 +21,16 @@ inline constexpr double kDefaultObjectDiagonal = 0.25;  // metres
 inline bool IsPlausibleDiagonal(double diagonal_m, double min_m = kMinPlausibleDiagonal,
                                 double max_m = kMaxPlausibleDiagonal) {
   return diagonal_m >= min_m && diagonal_m <= max_m;
+}
+
+// Metres per file unit of a mesh whose bounding-box diagonal is `diagonal` file units:
+// `mesh_unit` when it is given (> 0); else (0: the guess) 1 when the diagonal is plausible
+// in metres, or the factor that scales it to `target_m`.
+inline double MeshScale(double diagonal, double mesh_unit, double min_m = kMinPlausibleDiagonal,
+                        double max_m = kMaxPlausibleDiagonal,
+                        double target_m = kDefaultObjectDiagonal) {
+  if (mesh_unit > 0.0) return mesh_unit;
+  return IsPlausibleDiagonal(diagonal, min_m, max_m) ? 1.0 : target_m / diagonal;
 }
 
 }  // namespace sope

@@ -551,9 +551,8 @@ TEST(TableScan, FillsOnlyNearWhatStandsOnTheTable) {
 // each scene shows a mesh scaled as build-db scaled it, so the database's model lies on the
 // table at its size and is found there (before, the command refused such a database, and
 // the scenes would have kept the file's units: objects a thousand times too large).
-TEST(TableEvaluation, MeshesInMillimetresAreScaledAsTheDatabaseScaledThem) {
-  const testing::ScratchDir scratch;
-  const std::string models = scratch.File("models");
+// A mug and a bottle written in millimetres into `models`; their paths.
+std::vector<std::string> WriteMillimetreModels(const std::string& models) {
   fs::create_directories(models);
   std::vector<std::string> meshes;
   for (const auto& [cls, seed] : {std::pair{ObjectClass::kMug, 3}, {ObjectClass::kBottle, 5}}) {
@@ -562,24 +561,62 @@ TEST(TableEvaluation, MeshesInMillimetresAreScaledAsTheDatabaseScaledThem) {
     meshes.push_back(models + "/" + ToString(cls) + ".obj");
     WriteMesh(meshes.back(), mesh);
   }
-  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
-  db_options.views_per_model = 60;
-  WriteDatabase(scratch.File("mm.sopedb"), BuildDatabase(models, db_options));
-  const std::unique_ptr<Database> db = Database::Open(scratch.File("mm.sopedb"));
-  for (const ModelRecord& model : db->models()) {
-    EXPECT_LT(model.scale, 0.01) << model.name << ": the database should have scaled it";
-  }
+  return meshes;
+}
+
+// `sope eval --table` of the meshes on 2 scenes of both: every object found, of the right
+// model, posed within ADD-S < 10% of the (scaled) diameter.
+void ExpectBothFoundOnTwoTables(const Database& db, const std::vector<std::string>& meshes) {
   TableEvalOptions options;
   options.meshes = meshes;
   options.scenes = 2;
   options.min_objects = options.max_objects = 2;
   options.clutter = 0;
-  const TableEvalSummary summary = RunTableEvaluation(*db, options, "");
+  const TableEvalSummary summary = RunTableEvaluation(db, options, "");
   std::printf("%s", summary.Markdown().c_str());
   EXPECT_EQ(summary.known, 4);
-  // Found, of the right model, posed within ADD-S < 10% of the (scaled) diameter.
   EXPECT_EQ(summary.correct, 4);
   EXPECT_EQ(summary.detections, 4);
+}
+
+TEST(TableEvaluation, MeshesInMillimetresAreScaledAsTheDatabaseScaledThem) {
+  const testing::ScratchDir scratch;
+  const std::vector<std::string> meshes = WriteMillimetreModels(scratch.File("models"));
+  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
+  db_options.views_per_model = 60;
+  WriteDatabase(scratch.File("mm.sopedb"), BuildDatabase(scratch.File("models"), db_options));
+  const std::unique_ptr<Database> db = Database::Open(scratch.File("mm.sopedb"));
+  for (const ModelRecord& model : db->models()) {
+    EXPECT_LT(model.scale, 0.01) << model.name << ": the database should have scaled it";
+    EXPECT_NE(model.scale, 0.001) << model.name << ": guessed, not given";
+  }
+  ExpectBothFoundOnTwoTables(*db, meshes);
+}
+
+// The same meshes with their unit given (build-db --units mm): the database's models have
+// the objects' real size, the evaluation's scenes show them at that size (scaled by the
+// unit the database records, not by the guess: with the guess the scenes' objects would be
+// 0.25 m across against models of ~0.1–0.2 m, and not found).
+TEST(TableEvaluation, MeshesOfAGivenUnitKeepTheirRealSize) {
+  const testing::ScratchDir scratch;
+  const std::vector<std::string> meshes = WriteMillimetreModels(scratch.File("models"));
+  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
+  db_options.views_per_model = 60;
+  db_options.size.mesh_unit = 0.001;
+  WriteDatabase(scratch.File("mm.sopedb"), BuildDatabase(scratch.File("models"), db_options));
+  const std::unique_ptr<Database> db = Database::Open(scratch.File("mm.sopedb"));
+  EXPECT_EQ(db->options().size.mesh_unit, 0.001);
+  for (const ModelRecord& model : db->models()) {
+    const TriangleMesh original =
+        MakeObject(model.class_name == "mug" ? ObjectClass::kMug : ObjectClass::kBottle,
+                   model.class_name == "mug" ? 3 : 5);
+    EXPECT_EQ(model.scale, 0.001) << model.name;
+    // The model's diameter is the procedural object's own (metres), within the builder's
+    // vertex-sampled estimate.
+    EXPECT_NEAR(model.diameter, original.BoundingDiagonal(), 0.25 * original.BoundingDiagonal())
+        << model.name;
+  }
+  ExpectBothFoundOnTwoTables(*db, meshes);
 }
 
 TEST(PipelineOptions, BadValuesAreNamed) {

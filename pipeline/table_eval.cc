@@ -64,8 +64,10 @@ ScanReport ScanMeshScene(const Database& database, const TableEvalOptions& optio
   for (int i = 0; i < count; ++i) {
     TableObjectSpec spec;
     spec.spec = pool[i];
-    // Scaled as build-db scales it (kept when plausible in metres): the database's model.
+    // Scaled as build-db scaled it (its --units, or kept when plausible in metres): the
+    // database's model.
     spec.size = kSizeAsDatabase;
+    spec.mesh_unit = database.options().size.mesh_unit;
     source_options.table.objects.push_back(spec);
   }
   VirtualTableSource source(source_options);

@@ -196,6 +196,8 @@ const std::vector<OptionField<DatabaseOptions>>& DatabaseOptions::Fields() {
                            "Largest plausible diagonal")
                          .Unit("m"),
                      Field(&Z::target_diagonal, "target_diagonal", "Diagonal of scaled meshes")
+                         .Unit("m"),
+                     Field(&Z::mesh_unit, "mesh_unit", "Metres per mesh unit (0: guessed)")
                          .Unit("m")});
     AppendNested(&f, &O::preprocess, "preprocess", PreprocessFields());
     AppendNested(&f, &O::features, "features", FeatureFields());
@@ -258,6 +260,9 @@ void SizeNormalisationOptions::Check() const {
              min_plausible_diagonal, max_plausible_diagonal);
   SOPE_CHECK(target_diagonal > 0.0, "size normalisation: target_diagonal must be > 0 m, got {}",
              target_diagonal);
+  SOPE_CHECK(std::isfinite(mesh_unit) && mesh_unit >= 0.0 && mesh_unit <= 1000.0,
+             "size normalisation: mesh_unit must be in [0, 1000] m per unit (0: guessed), got {}",
+             mesh_unit);
 }
 
 DatabaseOptions DatabaseOptions::Preset(const std::string& name) {

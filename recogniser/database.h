@@ -73,11 +73,15 @@ struct ViewRenderOptions {
 // a plausible real-world size: a mesh whose bounding-box diagonal, read as metres, lies
 // outside [min_plausible_diagonal, max_plausible_diagonal] is scaled uniformly (about the
 // file's origin) to `target_diagonal`; other meshes keep their file's units as metres.
+// With `mesh_unit` given (build-db --units) every mesh is scaled by it instead: models in
+// millimetres (BOP's) keep their real size, which a rig scanning the real objects needs.
 struct SizeNormalisationOptions {
   // Defaults: the one plausibility rule (core/object_size.h).
   double min_plausible_diagonal = kMinPlausibleDiagonal;  // metres
   double max_plausible_diagonal = kMaxPlausibleDiagonal;  // metres
   double target_diagonal = kDefaultObjectDiagonal;        // metres
+  // Metres per mesh file unit (0.001: millimetres); 0 guesses by the rule above.
+  double mesh_unit = 0.0;
   void Check() const;
 };
 

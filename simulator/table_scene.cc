@@ -212,6 +212,10 @@ void TableSceneOptions::Check() const {
     SOPE_CHECK(object.size == kSizeAsDatabase ||
                    (std::isfinite(object.size) && object.size >= 0 && object.size <= 10),
                "object {}: size must be in [0, 10] m, got {}", object.spec, object.size);
+    SOPE_CHECK(std::isfinite(object.mesh_unit) && object.mesh_unit >= 0 &&
+                   object.mesh_unit <= 1000,
+               "object {}: mesh unit must be in [0, 1000] m (0: guessed), got {}", object.spec,
+               object.mesh_unit);
   }
 }
 
@@ -260,12 +264,11 @@ TableScene MakeTableScene(const TableSceneOptions& options, const RigCalibration
       const double diagonal = truth.mesh.BoundingDiagonal();
       SOPE_CHECK(std::isfinite(diagonal) && diagonal > 0, "object {} ({}): the mesh has no extent",
                  i + 1, truth.model);
-      const double size =
-          spec.size != kSizeAsDatabase ? spec.size
-          : IsPlausibleDiagonal(diagonal) ? 0.0
-                                          : kDefaultObjectDiagonal;
-      if (size > 0) {
-        truth.scale = size / diagonal;
+      const double scale = spec.size == kSizeAsDatabase ? MeshScale(diagonal, spec.mesh_unit)
+                           : spec.size > 0             ? spec.size / diagonal
+                                                       : 1.0;
+      if (scale != 1.0) {
+        truth.scale = scale;
         truth.mesh.Transform(truth.scale, Eigen::Vector3d::Zero());
       }
     } else {

@@ -53,8 +53,12 @@ struct TableObjectSpec {
   TriangleMesh mesh;
   // Bounding-box diagonal to scale the mesh to, metres; 0 keeps its units (files in
   // metres); kSizeAsDatabase: the rule build-db applies (core/object_size.h: kept when the
-  // diagonal is plausible in metres, else scaled to kDefaultObjectDiagonal).
+  // diagonal is plausible in metres, else scaled to kDefaultObjectDiagonal; or scaled by
+  // mesh_unit when that is given, as build-db --units).
   double size = 0.0;
+  // With kSizeAsDatabase: metres per mesh file unit (SizeNormalisationOptions::mesh_unit of
+  // the database); 0 guesses.
+  double mesh_unit = 0.0;
 };
 constexpr double kSizeAsDatabase = -1.0;
 

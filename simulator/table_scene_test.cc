@@ -273,6 +273,27 @@ TEST(TableScene, SizesMeshesLikeTheDatabaseBuilder) {
   EXPECT_EQ(scene.objects[0].model, "large");
   EXPECT_EQ(scene.objects[1].scale, 1.0);
   EXPECT_NEAR(scene.objects[2].mesh.BoundingDiagonal(), 0.2, 1e-6);
+
+  // With the database's mesh unit (build-db --units) every mesh is scaled by it: a 150 mm
+  // box (90 x 120 x 30) is 0.153 m across, not the guess's 0.25 m; a mesh plausible in
+  // metres is scaled too.
+  TableObjectSpec millimetres;
+  millimetres.mesh = MakeBox(90, 120, 30);
+  millimetres.model = "mm";
+  millimetres.size = kSizeAsDatabase;
+  millimetres.mesh_unit = 0.001;
+  TableObjectSpec decimetres;
+  decimetres.mesh = MakeBox(0.3, 0.4, 0.1);  // ~0.5 units: plausible as metres
+  decimetres.model = "dm";
+  decimetres.size = kSizeAsDatabase;
+  decimetres.mesh_unit = 0.1;
+  options.objects = {millimetres, decimetres};
+  const TableScene given = MakeTableScene(options, DefaultRigCalibration());
+  EXPECT_EQ(given.objects[0].scale, 0.001);
+  EXPECT_NEAR(given.objects[0].mesh.BoundingDiagonal(), std::hypot(0.09, 0.12, 0.03), 1e-6);
+  EXPECT_EQ(given.objects[1].scale, 0.1);
+  options.objects[0].mesh_unit = -1;
+  EXPECT_THROW(MakeTableScene(options, DefaultRigCalibration()), Error);
 }
 
 TEST(TableScene, BadInputGetsOneClearError) {

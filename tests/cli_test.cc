@@ -232,6 +232,10 @@ TEST_F(Cli, ImpossibleValuesAndCountsAreRefused) {
       {"objects", "objects --instances 2000000000", "[1, 1000]"},
       {"build-db", "build-db --models m --views 100000", "[1, 2000]"},
       {"build-db", "build-db --models m --threads 100000", "[0, 256]"},
+      {"build-db", "build-db --models m --units furlong", "--units 'furlong': expected auto"},
+      {"build-db", "build-db --models m --units 0", "must be in (0, 1000]"},
+      {"simulate", sphere + " --units -1", "must be in (0, 1000]"},
+      {"simulate", sphere + " --units mm --object-size 0.2", "exclude each other"},
       {"patterns", "patterns --projector 32768x32768", "1..16384"},
       {"patterns", "patterns --projector 16384x16384", "limit"},
   };

@@ -272,5 +272,33 @@ TEST_F(RecogniseCli, BuildDbSkipsMeshesWithImpossibleCounts) {
   EXPECT_EQ(Database::Open(local_.File("x.sopedb"))->models().size(), 1u);
 }
 
+// build-db --units: a mesh in millimetres keeps its real size (the database records the
+// unit and scales every model by it), where the size rule guesses 0.25 m across.
+TEST_F(RecogniseCli, BuildDbTakesTheMeshesUnit) {
+  const std::string models = local_.File("mm_models");
+  TriangleMesh mug = MakeObject(ObjectClass::kMug, 1);
+  const double diagonal_m = mug.BoundingDiagonal();
+  mug.Transform(1000.0, Eigen::Vector3d::Zero());
+  WriteMesh(models + "/mug/mug_a.obj", mug);
+  for (const std::string units : {"", " --units mm", " --units 0.001"}) {
+    SCOPED_TRACE(units);
+    const SopeRun run = Sope("build-db --views 12 --models " + models + " --out " +
+                                 local_.File("mm.sopedb") + units,
+                             local_);
+    ASSERT_EQ(run.exit_code, 0) << run.err;
+    const std::unique_ptr<Database> db = Database::Open(local_.File("mm.sopedb"));
+    ASSERT_EQ(db->models().size(), 1u);
+    const double scale = db->models()[0].scale;
+    if (units.empty()) {
+      // The guess: 0.25 m across (within the OBJ's float vertices).
+      EXPECT_NEAR(scale * 1000.0 * diagonal_m, 0.25, 1e-6);
+      EXPECT_EQ(db->options().size.mesh_unit, 0.0);
+    } else {
+      EXPECT_EQ(scale, 0.001);
+      EXPECT_EQ(db->options().size.mesh_unit, 0.001);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace sope

@@ -19,6 +19,7 @@
 #include "core/camera_model.h"
 #include "core/error.h"
 #include "core/file_util.h"
+#include "core/object_size.h"
 #include "core/statistics.h"
 #include "core/units.h"
 #include "recogniser/view_description.h"
@@ -69,6 +70,11 @@ std::optional<LoadedModel> LoadModel(const ModelSource& source,
   record.class_name = source.class_name;
   record.source_path = source.path;
   record.scale = SizeNormalisationScale(model.mesh, size);
+  if (size.mesh_unit > 0.0 && !IsPlausibleDiagonal(diagonal * record.scale)) {
+    spdlog::warn("{}: {:.4g} m across at {} m per mesh unit, not {}-{} m: is the unit right?",
+                 source.path, diagonal * record.scale, size.mesh_unit, kMinPlausibleDiagonal,
+                 kMaxPlausibleDiagonal);
+  }
   if (record.scale != 1.0) model.mesh.Transform(record.scale, Eigen::Vector3d::Zero());
   Eigen::Vector3f lo, hi;
   model.mesh.Bounds(&lo, &hi);
@@ -327,11 +333,8 @@ std::vector<ModelSource> ListModels(const std::string& models_dir) {
 }
 
 double SizeNormalisationScale(const TriangleMesh& mesh, const SizeNormalisationOptions& options) {
-  const double diagonal = mesh.BoundingDiagonal();
-  if (diagonal >= options.min_plausible_diagonal && diagonal <= options.max_plausible_diagonal) {
-    return 1.0;
-  }
-  return options.target_diagonal / diagonal;
+  return MeshScale(mesh.BoundingDiagonal(), options.mesh_unit, options.min_plausible_diagonal,
+                   options.max_plausible_diagonal, options.target_diagonal);
 }
 
 std::string BuildSummary::BriefReport() const {

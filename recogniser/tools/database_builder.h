@@ -29,8 +29,8 @@ struct ModelSource {
 // `models_dir` is not a readable directory or holds no mesh file.
 std::vector<ModelSource> ListModels(const std::string& models_dir);
 
-// The scale SizeNormalisationOptions gives a mesh: 1 when its bounding-box diagonal is
-// plausible in metres, else target_diagonal / diagonal.
+// The scale SizeNormalisationOptions gives a mesh: mesh_unit when given, else 1 when its
+// bounding-box diagonal is plausible in metres, else target_diagonal / diagonal.
 double SizeNormalisationScale(const TriangleMesh& mesh, const SizeNormalisationOptions& options);
 
 struct BuildSummary {

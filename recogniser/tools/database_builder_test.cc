@@ -1,6 +1,7 @@
 #include "recogniser/tools/database_builder.h"
 
 #include <filesystem>
+#include <limits>
 
 #include <gtest/gtest.h>
 
@@ -58,6 +59,26 @@ TEST(SizeNormalisation, ImplausibleSizesAreScaled) {
   EXPECT_DOUBLE_EQ(SizeNormalisationScale(mesh, options), 0.25 / 5.0);
   mesh.Transform(0.06, Eigen::Vector3d::Zero());  // 0.3 m: plausible
   EXPECT_DOUBLE_EQ(SizeNormalisationScale(mesh, options), 1.0);
+}
+
+// A mesh unit given (build-db --units) replaces the guess, plausible diagonal or not: a
+// BOP model in millimetres keeps its real size, where the guess makes every such model
+// 0.25 m across.
+TEST(SizeNormalisation, AGivenMeshUnitReplacesTheGuess) {
+  TriangleMesh mesh;
+  mesh.vertices = {{0, 0, 0}, {90, 0, 0}, {0, 120, 0}};  // diagonal 150 mm
+  mesh.faces = {{0, 1, 2}};
+  SizeNormalisationOptions options;
+  EXPECT_DOUBLE_EQ(SizeNormalisationScale(mesh, options), 0.25 / 150.0);
+  options.mesh_unit = 0.001;
+  EXPECT_DOUBLE_EQ(SizeNormalisationScale(mesh, options), 0.001);
+  mesh.Transform(0.001, Eigen::Vector3d::Zero());  // 0.15 "units": plausible as metres
+  options.mesh_unit = 0.01;                          // but given in centimetres
+  EXPECT_DOUBLE_EQ(SizeNormalisationScale(mesh, options), 0.01);
+  options.mesh_unit = -0.001;
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "mesh_unit");
+  options.mesh_unit = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW_WITH_MESSAGE(options.Check(), Error, "mesh_unit");
 }
 
 TEST(FarthestPointSample, SpreadsAndEveryPrefixSpreads) {
