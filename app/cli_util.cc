@@ -64,9 +64,14 @@ std::vector<double> ParseNumbers(const std::string& text, const std::string& opt
   return numbers;
 }
 
-double ParseMeshUnit(const std::string& text, const std::string& option) {
+namespace {
+
+// Metres per unit of `text` (m, cm, mm, in, or a positive number); with `allow_auto`,
+// "auto" gives 0.
+double ParseUnit(const std::string& text, const std::string& option, bool allow_auto) {
   static constexpr std::pair<const char*, double> kUnits[] = {
-      {"auto", 0.0}, {"m", 1.0}, {"cm", 0.01}, {"mm", 0.001}, {"in", 0.0254}};
+      {"m", 1.0}, {"cm", 0.01}, {"mm", 0.001}, {"in", 0.0254}};
+  if (allow_auto && text == "auto") return 0.0;
   for (const auto& [name, metres] : kUnits) {
     if (text == name) return metres;
   }
@@ -76,12 +81,22 @@ double ParseMeshUnit(const std::string& text, const std::string& option) {
     metres = std::stod(text, &used);
     SOPE_CHECK(used == text.size(), "trailing characters");
   } catch (const std::exception&) {
-    SOPE_THROW("{} '{}': expected auto, m, cm, mm, in or metres per mesh unit (e.g. 0.001)",
-               option, text);
+    SOPE_THROW("{} '{}': expected {}m, cm, mm, in or metres per unit (e.g. 0.001)", option, text,
+               allow_auto ? "auto, " : "");
   }
   SOPE_CHECK(std::isfinite(metres) && metres > 0.0 && metres <= 1000.0,
-             "{} '{}': metres per mesh unit must be in (0, 1000]", option, text);
+             "{} '{}': metres per unit must be in (0, 1000]", option, text);
   return metres;
+}
+
+}  // namespace
+
+double ParseMeshUnit(const std::string& text, const std::string& option) {
+  return ParseUnit(text, option, true);
+}
+
+double ParseLengthUnit(const std::string& text, const std::string& option) {
+  return ParseUnit(text, option, false);
 }
 
 void AddMeshUnitFlag(CLI::App& app, std::string* text) {

@@ -23,6 +23,8 @@ std::vector<double> ParseNumbers(const std::string& text, const std::string& opt
 // core/object_size.h guesses), "m" 1, "cm" 0.01, "mm" 0.001, "in" 0.0254, or a positive
 // number (metres per unit). Throws sope::Error naming `option` otherwise.
 double ParseMeshUnit(const std::string& text, const std::string& option);
+// The same without "auto": the unit of a point cloud's coordinates.
+double ParseLengthUnit(const std::string& text, const std::string& option);
 // Adds `--units` (bound to *text, default "auto") with the help every mesh-reading command
 // shares.
 void AddMeshUnitFlag(CLI::App& app, std::string* text);

@@ -1,9 +1,13 @@
-// sope recognise --db DB.sopedb --cloud CLOUD.{ply,pcd} [--top 4] [--json] [--table
-//                [--object-clouds DIR] [--min-range M] [--max-range M]]
+// sope recognise --db DB.sopedb --cloud CLOUD.{ply,pcd} [--cloud-units mm] [--top 4] [--json]
+//                [--table [--object-clouds DIR] [--min-range M] [--max-range M]]
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <optional>
+#include <string>
+#include <vector>
 
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include "app/cli_util.h"
@@ -17,13 +21,37 @@
 #include "recogniser/scene_recognition.h"
 
 namespace sope {
+namespace {
+
+// A cloud whose points lie a median of more than this many units from the camera is not in
+// metres (no structured-light rig works at 20 m): most likely millimetres.
+constexpr double kImplausibleMedianRange = 20.0;
+
+// "" or the hint that `cloud` (unit given or not) looks like millimetres, not metres.
+std::string UnitHint(const PointCloud& cloud, bool unit_given) {
+  if (unit_given) return "";
+  std::vector<float> ranges;
+  const size_t step = std::max<size_t>(1, cloud.size() / 4096);
+  for (size_t i = 0; i < cloud.size(); i += step) {
+    if (cloud.points[i].allFinite()) ranges.push_back(cloud.points[i].norm());
+  }
+  if (ranges.empty()) return "";
+  std::nth_element(ranges.begin(), ranges.begin() + ranges.size() / 2, ranges.end());
+  const double median = ranges[ranges.size() / 2];
+  if (!(median > kImplausibleMedianRange)) return "";
+  return fmt::format("the cloud's points lie a median {:.4g} units from the camera: recognise "
+                     "reads metres; in millimetres? give --cloud-units mm",
+                     median);
+}
+
+}  // namespace
 
 int RunRecognise(int argc, char** argv) {
   CLI::App app{"Recognise the object in a point cloud (metres, camera frame) and estimate its "
                "pose: class, model, database viewpoint and cam_from_model (X_cam = R·X_model + "
                "t), ICP-refined and verified. --json prints one JSON object per line.",
                "sope recognise"};
-  std::string db_path, cloud_path;
+  std::string db_path, cloud_path, cloud_units = "m";
   RecognitionOptions options;
   bool json = false, no_pose = false, table = false;
   std::string object_clouds_dir;
@@ -32,6 +60,11 @@ int RunRecognise(int argc, char** argv) {
   cli::LoggingFlags logging;
   app.add_option("--db", db_path, "Database file (.sopedb, from sope build-db)")->required();
   app.add_option("--cloud", cloud_path, "Query cloud (.ply or .pcd)")->required();
+  CLI::Option* cloud_units_option =
+      app.add_option("--cloud-units", cloud_units,
+                     "Unit of the cloud's coordinates: m, cm, mm, in, or metres per unit (the "
+                     "results and --object-clouds segments are in metres)")
+          ->capture_default_str();
   cli::AddOptionFlags(app, &options, RecognitionOptions::Fields());
   app.add_flag("--no-pose", no_pose, "Skip pose estimation and verification (ranking only)");
   app.add_flag("--json", json, "Print the result as one JSON object");
@@ -58,6 +91,7 @@ int RunRecognise(int argc, char** argv) {
   if (const int code = cli::Parse(app, argc, argv); code >= 0) return code;
   logging.Apply();
 
+  const double cloud_unit = cli::ParseLengthUnit(cloud_units, "--cloud-units");
   if (no_pose) options.screening.models = 0;
   options.Check();
   SOPE_CHECK(table || object_clouds_dir.empty(), "--object-clouds needs --table");
@@ -68,7 +102,11 @@ int RunRecognise(int argc, char** argv) {
   if (table) scene_options.Check();
 
   const std::unique_ptr<Database> db = Database::Open(db_path);
-  const PointCloud cloud = ReadPointCloud(cloud_path);
+  PointCloud cloud = ReadPointCloud(cloud_path);
+  if (cloud_unit != 1.0) {
+    for (Eigen::Vector3f& p : cloud.points) p *= static_cast<float>(cloud_unit);
+  }
+  const std::string hint = UnitHint(cloud, cloud_units_option->count() > 0);
   std::unique_ptr<FaissCoarseIndex> coarse_index;
   if (!coarse_index_path.empty()) {
     coarse_index = FaissCoarseIndex::Read(coarse_index_path, db->codes().bits, db->num_views());
@@ -98,11 +136,19 @@ int RunRecognise(int argc, char** argv) {
         write("unknown_" + std::to_string(k) + ".ply", scene.unknown[k].indices);
       }
     }
+    // Nothing on a table is a result; a cloud in the wrong unit gets a hint beside it.
+    if (scene.objects.empty() && !hint.empty()) spdlog::warn("{}", hint);
     std::printf("%s\n", json ? SceneRecognitionResultToJson(scene).c_str()
                              : SceneBriefReport(scene).c_str());
     return 0;
   }
-  const RecognitionResult result = Recogniser(*db).Recognise(cloud, options);
+  RecognitionResult result;
+  try {
+    result = Recogniser(*db).Recognise(cloud, options);
+  } catch (const Error& e) {
+    if (hint.empty()) throw;
+    SOPE_THROW("{} ({})", e.what(), hint);
+  }
   SOPE_CHECK(!result.empty(), "no suggestion (the database has no comparable view)");
   if (json) {
     // Not recognised: "class": null, the best guess among the candidates.

@@ -118,6 +118,39 @@ TEST_F(RecogniseCli, RecognisesTheQueryInTextAndJson) {
   EXPECT_TRUE(j.at("timing_ms").contains("total"));
 }
 
+// A cloud in millimetres (other tools' clouds often are): without --cloud-units one error
+// line that says so; with --cloud-units mm the answer of the cloud in metres.
+TEST_F(RecogniseCli, CloudsInMillimetresNeedTheirUnit) {
+  ASSERT_EQ(build_->exit_code, 0) << build_->err;
+  PointCloud millimetres = ReadPointCloud(scratch_->File("query.ply"));
+  for (Eigen::Vector3f& p : millimetres.points) p *= 1000.0f;
+  WritePointCloud(local_.File("query_mm.ply"), millimetres);
+  const std::string base = "recognise --json --db " + db() + " --cloud ";
+  ExpectOneLineError(Sope(base + local_.File("query_mm.ply"), local_), "recognise",
+                     "give --cloud-units mm");
+  const SopeRun metres = Sope(base + scratch_->File("query.ply"), local_);
+  const SopeRun given = Sope(base + local_.File("query_mm.ply") + " --cloud-units mm", local_);
+  ASSERT_EQ(metres.exit_code, 0) << metres.err;
+  ASSERT_EQ(given.exit_code, 0) << given.err;
+  const nlohmann::json a = nlohmann::json::parse(metres.out);
+  const nlohmann::json b = nlohmann::json::parse(given.out);
+  EXPECT_EQ(b.at("model"), "mug_a");
+  EXPECT_EQ(b.at("model"), a.at("model"));
+  for (int k = 0; k < 3; ++k) {
+    // The same query within the float rounding of ×1000 then ×0.001 (and the ICP's answer
+    // to it): well under a millimetre.
+    EXPECT_NEAR(b.at("pose").at("translation").at(k).get<double>(),
+                a.at("pose").at("translation").at(k).get<double>(), 2e-4);
+  }
+  // A table scene in millimetres is a result (nothing on a table), with the hint beside it.
+  const SopeRun table = Sope(base + local_.File("query_mm.ply") + " --table", local_);
+  ASSERT_EQ(table.exit_code, 0) << table.err;
+  EXPECT_EQ(nlohmann::json::parse(table.out).at("objects").size(), 0u);
+  EXPECT_NE(table.err.find("give --cloud-units mm"), std::string::npos) << table.err;
+  ExpectOneLineError(Sope(base + local_.File("query_mm.ply") + " --cloud-units yards", local_),
+                     "recognise", "--cloud-units 'yards'");
+}
+
 TEST_F(RecogniseCli, BadCloudsGiveOneErrorLine) {
   ASSERT_EQ(build_->exit_code, 0) << build_->err;
   const std::string base = "recognise --db " + db() + " --cloud ";
