@@ -223,9 +223,11 @@ def calibration_seeds(out):
 
 def cli_seeds(out):
     d = os.path.join(out, "cli_numbers_fuzz")
-    # first byte % 3: 0 ParseSize, 1 ParseNumbers, 2 ParsePose
+    # first byte % 5: 0 ParseSize, 1 ParseNumbers, 2 ParseMeshUnit, 3 ParseLengthUnit,
+    # 4 ParsePose
     for i, text in enumerate(["\x001024x768", "\x0032768X1", "\x010.5,1e-3,-2,7",
-                              "\x0142", "\x0220,30,0,0,0,0.6", "\x02-90,0,180,0.1,-0.2,1e0"]):
+                              "\x0142", "\x02auto", "\x02mm", "\x030.0254", "\x03cm",
+                              "\x0420,30,0,0,0,0.6", "\x04-90,0,180,0.1,-0.2,1e0"]):
         write(d, f"value_{i}", text)
 
 
