@@ -142,7 +142,7 @@ std::vector<cv::Mat> ReadGreyRamp(const std::string& directory) {
   nlohmann::json root;
   try {
     root = nlohmann::json::parse(ReadFileToString(path, "grey ramp"));
-  } catch (const nlohmann::json::parse_error& e) {
+  } catch (const nlohmann::json::exception& e) {  // parse_error, or a number overflow
     SOPE_THROW("{}: not valid JSON ({})", path, e.what());
   }
   std::vector<cv::Mat> images;

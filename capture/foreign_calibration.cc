@@ -125,15 +125,9 @@ double MetresPer(LengthUnit unit) {
 RigCalibration ReadForeignCalibration(const std::string& path, ForeignCalibrationFormat format,
                                       LengthUnit unit, int projector_width,
                                       int projector_height) {
-  RequireReadableFile(path, "calibration");
   const std::string where = fmt::format("{} ({})", path, ToString(format));
   cv::FileStorage fs;
-  try {
-    fs.open(path, cv::FileStorage::READ);
-  } catch (const cv::Exception&) {
-    SOPE_THROW("calibration {}: not a readable OpenCV XML/YAML file", where);
-  }
-  SOPE_CHECK(fs.isOpened(), "calibration {}: not a readable OpenCV XML/YAML file", where);
+  OpenFileStorageForReading(path, "calibration " + where, &fs);
 
   RigCalibration calibration;
   cv::Mat rotation, translation;

@@ -594,6 +594,18 @@ TEST(ForeignCalibration, ProcamCalibrationResultInMillimetres) {
                Error);
 }
 
+// The file OpenCV 4.6's YAML parser loops forever on (a second %YAML header; found by
+// calibration_yaml_fuzz for sope's own calibration reader, which shares the opening) is
+// refused here too.
+TEST(ForeignCalibration, ASecondYamlHeaderIsRefused) {
+  testing::ScratchDir scratch;
+  const std::string path = scratch.File("calibration_result.yaml");
+  WriteFileAtomic(path, "%YAML:1.0\n---%YAML:1\nc.0\n--a");
+  EXPECT_THROW_WITH_MESSAGE(ReadForeignCalibration(path, ForeignCalibrationFormat::kProcam,
+                                                   LengthUnit::kMillimetre, 640, 480),
+                            Error, "calibration_result.yaml", "%YAML directive");
+}
+
 TEST(ForeignCalibration, SlStudioCalibrationXml) {
   const RigCalibration truth = testing::SmallRig();
   testing::ScratchDir scratch;

@@ -26,6 +26,14 @@
 namespace sope {
 namespace {
 
+// A colour property's value as a byte: clamped to 0..255, 0 for NaN (a float → uint8_t
+// cast of anything else is undefined; found by ply_fuzz with an ASCII "uchar" of 1208).
+// Colours only tint points, so a file that overflows them is read, not refused.
+uint8_t ColourByte(double value) {
+  if (!(value > 0.0)) return 0;
+  return value >= 255.0 ? uint8_t{255} : static_cast<uint8_t>(value);
+}
+
 PointCloud ReadPlyCloud(const std::string& path) {
   const std::vector<internal::PlyElement> elements = internal::ReadPly(path, {"vertex"});
   const internal::PlyElement* vertex = nullptr;
@@ -44,8 +52,7 @@ PointCloud ReadPlyCloud(const std::string& path) {
   for (const std::vector<double>& row : vertex->rows) {
     cloud.points.emplace_back(row[x], row[y], row[z]);
     if (has_color) {
-      cloud.colors.emplace_back(static_cast<uint8_t>(row[r]), static_cast<uint8_t>(row[g]),
-                                static_cast<uint8_t>(row[b]));
+      cloud.colors.emplace_back(ColourByte(row[r]), ColourByte(row[g]), ColourByte(row[b]));
     }
     if (has_normal) cloud.normals.emplace_back(row[nx], row[ny], row[nz]);
   }

@@ -92,6 +92,21 @@ TEST(CloudIo, TruncatedAndMalformedFilesAreErrors) {
                             "no such file");
 }
 
+// Colour values a byte cannot hold (an ASCII "uchar" of 1208, negative ones) are clamped,
+// not cast (undefined behaviour; found by ply_fuzz, 2026-12-05): the cloud is read.
+TEST(CloudIo, OutOfRangeColoursAreClamped) {
+  testing::ScratchDir scratch;
+  WriteFileAtomic(scratch.File("c.ply"),
+                  "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\n"
+                  "property float z\nproperty uchar red\nproperty uchar green\n"
+                  "property uchar blue\nend_header\n0 0 1 1208 -5 -1e9\n0 0 2 254.7 0 255\n");
+  const PointCloud cloud = ReadPointCloud(scratch.File("c.ply"));
+  ASSERT_EQ(cloud.size(), 2u);
+  ASSERT_TRUE(cloud.HasColors());
+  EXPECT_EQ(cloud.colors[0], Color3ub(255, 0, 0));
+  EXPECT_EQ(cloud.colors[1], Color3ub(254, 0, 255));
+}
+
 TEST(CloudIo, MismatchedAttributesRefusedOnWrite) {
   testing::ScratchDir scratch;
   PointCloud cloud = TestCloud(true, false);

@@ -21,6 +21,7 @@
 #include <thread>
 #include <vector>
 
+#include <opencv2/core/persistence.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include "core/error.h"
@@ -271,6 +272,20 @@ std::string ReadFileToString(const std::string& path, const std::string& what) {
   }
   ::close(fd);
   return contents;
+}
+
+void OpenFileStorageForReading(const std::string& path, const std::string& label,
+                               cv::FileStorage* fs) {
+  const std::string text = ReadFileToString(path, label);
+  SOPE_CHECK(text.find("%YAML", 1) == std::string::npos,
+             "{}: a %YAML directive after the start of the file (one YAML document only)",
+             label);
+  try {
+    fs->open(path, cv::FileStorage::READ);
+  } catch (const std::exception&) {  // cv::Exception, and std::length_error from its parser
+    SOPE_THROW("{}: not a readable OpenCV YAML/XML file", label);
+  }
+  SOPE_CHECK(fs->isOpened(), "{}: not a readable OpenCV YAML/XML file", label);
 }
 
 void WriteFileAtomic(const std::string& path, const std::string& contents) {

@@ -8,6 +8,10 @@
 
 #include <opencv2/core/mat.hpp>
 
+namespace cv {
+class FileStorage;
+}  // namespace cv
+
 namespace sope {
 
 // Throws sope::Error "<what> <path>: <reason>" unless `path` is an existing readable
@@ -46,6 +50,15 @@ std::string ReadFileToString(const std::string& path, const std::string& what);
 // Writes `contents` to `path` atomically: a temporary file in the same directory, fsync,
 // rename. Creates missing parent directories. Throws sope::Error on failure.
 void WriteFileAtomic(const std::string& path, const std::string& contents);
+
+// Opens an OpenCV FileStorage file (YAML or XML) at `path` for reading into *fs. Every
+// failure is one sope::Error "<label>: <reason>": not a readable regular file, the parser's
+// exceptions (cv::Exception, and std:: exceptions its YAML parser throws), a file it opens
+// as nothing — and, checked before parsing, a "%YAML" directive after the file's start
+// (a second YAML document's header): OpenCV 4.6's parser loops forever on some of those
+// (found by calibration_yaml_fuzz: "%YAML:1.0\n---%YAML:1\nc0\n--a").
+void OpenFileStorageForReading(const std::string& path, const std::string& label,
+                               cv::FileStorage* fs);
 
 // Reads an image with cv::imread flags (IMREAD_UNCHANGED by default); throws sope::Error
 // naming the file when it is missing or cannot be decoded. EXR is enabled. PNGs are

@@ -309,7 +309,7 @@ FrameSetManifest ParseFrameSetManifest(const std::string& json_text, const std::
   json root;
   try {
     root = json::parse(json_text);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse_error, or out_of_range: a number overflow
     SOPE_THROW("{}: not valid JSON ({})", source, e.what());
   }
   SOPE_CHECK(root.is_object(), "{}: top level must be an object", source);

@@ -83,6 +83,12 @@ TEST(FrameSet, MalformedManifestsGiveClearErrors) {
   auto parse = [](const json& j) { ParseFrameSetManifest(j.dump(), "m.json"); };
   EXPECT_NE(ErrorOf([] { ParseFrameSetManifest("{not json", "m.json"); }).find("not valid JSON"),
             std::string::npos);
+  // A number beyond double's range (nlohmann throws out_of_range, not parse_error: it
+  // escaped as an internal error; found by frames_json_fuzz, 2026-12-05).
+  EXPECT_NE(ErrorOf([] {
+              ParseFrameSetManifest("{\"camera\": {\"width\": 888.38886E8887}}", "m.json");
+            }).find("m.json: not valid JSON"),
+            std::string::npos);
   json j = good;
   j["format"] = "sope-frames/9";
   EXPECT_NE(ErrorOf([&] { parse(j); }).find("unsupported format"), std::string::npos);

@@ -76,6 +76,13 @@ TEST(MeshIo, MalformedMeshesAreErrors) {
   WriteFileAtomic(scratch.File("bad.stl"), "garbage");
   EXPECT_THROW_WITH_MESSAGE(ReadMesh(scratch.File("bad.stl")), Error, "bad.stl");
   EXPECT_THROW_WITH_MESSAGE(ReadMesh(scratch.File("model.3ds")), Error, "model.3ds", "'3ds'");
+  // A face index int64 cannot hold was cast (undefined; found by ply_fuzz, 2026-12-05).
+  WriteFileAtomic(scratch.File("huge_index.ply"),
+                  "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                  "property float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+                  "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 1e98\n");
+  EXPECT_THROW_WITH_MESSAGE(ReadMesh(scratch.File("huge_index.ply")), Error, "huge_index.ply",
+                            "not an index");
 }
 
 TEST(MeshIo, SharedMeshesLoadWhenPresent) {

@@ -1,6 +1,7 @@
 #include "core/ply_reader.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <sstream>
 
@@ -119,6 +120,10 @@ void ReadBody(Cursor& cursor, const std::vector<std::string>& wanted,
         SOPE_CHECK(count >= 0 && count < 1e6, "PLY {}: invalid list length {}", path, count);
         for (int k = 0; k < static_cast<int>(count); ++k) {
           const double value = cursor.Read(p.type);
+          // List entries are indices: a value int64 cannot hold (or NaN) is refused, not
+          // cast (undefined; found by ply_fuzz with an ASCII 1e98).
+          SOPE_CHECK(std::abs(value) < 9.0e18, "PLY {}: list entry {} is not an index", path,
+                     value);
           if (keep && !list_taken) element.lists[i].push_back(static_cast<int64_t>(value));
         }
         list_taken = true;

@@ -114,14 +114,8 @@ double RigCalibration::BaselineLength() const {
 }
 
 RigCalibration ReadRigCalibration(const std::string& path) {
-  RequireReadableFile(path, "calibration");
   cv::FileStorage fs;
-  try {
-    fs.open(path, cv::FileStorage::READ);
-  } catch (const std::exception&) {  // cv::Exception, and std::length_error from its parser
-    SOPE_THROW("calibration {}: not a readable OpenCV YAML/XML file", path);
-  }
-  SOPE_CHECK(fs.isOpened(), "calibration {}: cannot open", path);
+  OpenFileStorageForReading(path, "calibration " + path, &fs);
   // Keys are looked up in the top-level map; OpenCV asserts (throws) on anything else.
   SOPE_CHECK(fs.root().isMap(), "calibration {}: not a calibration file (the top level is not a "
              "map of keys)", path);

@@ -121,6 +121,24 @@ TEST(RigCalibration, MalformedFilesNameTheProblem) {
                             "no such file");
 }
 
+// Found by fuzz/calibration_yaml_fuzz (2026-12-05): OpenCV 4.6's YAML parser loops forever
+// on a second "%YAML" header after a document start ("---%YAML:1") followed by two short
+// lines; sope calibrate/scan/… hung on such a file. Refused before OpenCV reads it (without
+// the check this test does not finish: ctest's timeout fails it).
+TEST(RigCalibration, ASecondYamlHeaderIsRefusedBeforeTheParserLoopsOnIt) {
+  testing::ScratchDir scratch;
+  for (const std::string& text : {std::string("%YAML:1.0\n---%YAML:1\nc.0\n--a"),
+                                  std::string("%YAML:1.0\n--- %YAML:1.0\nc0\n--a")}) {
+    WriteFileAtomic(scratch.File("twice.yaml"), text);
+    EXPECT_THROW_WITH_MESSAGE(ReadRigCalibration(scratch.File("twice.yaml")), Error,
+                              "twice.yaml", "%YAML directive after the start");
+  }
+  // The usual header stays accepted.
+  WriteRigCalibration(scratch.File("good.yaml"), TestRig());
+  EXPECT_EQ(ReadFileToString(scratch.File("good.yaml"), "test").rfind("%YAML", 0), 0u);
+  EXPECT_NO_THROW(ReadRigCalibration(scratch.File("good.yaml")));
+}
+
 // Found by fuzz/calibration_yaml_fuzz: a YAML whose top level is a sequence made OpenCV's
 // FileStorage::operator[] throw cv::Exception (an internal error, not a sope::Error).
 TEST(RigCalibration, TopLevelNotAMapIsAClearError) {

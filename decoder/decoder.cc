@@ -1246,7 +1246,7 @@ CorrespondenceMap ReadCorrespondenceMap(const std::string& directory) {
   nlohmann::json root;
   try {
     root = nlohmann::json::parse(text);
-  } catch (const nlohmann::json::parse_error& e) {
+  } catch (const nlohmann::json::exception& e) {  // parse_error, or a number overflow
     SOPE_THROW("{}: not valid JSON ({})", json_path, e.what());
   }
   CorrespondenceMap map;

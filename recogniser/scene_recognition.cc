@@ -965,7 +965,10 @@ bool AddUprightScaled(const SceneContext& ctx, const Hypothesis& upright, int k,
     heights[i] = n.dot(d);
     radii[i] = (d - n * heights[i]).norm();
   }
-  const auto [low, top] = RobustRange(heights);
+  // Not a structured binding: the lambda below uses `low`, and C++17 cannot capture one
+  // (clang refuses; the fuzzing build is clang's).
+  const std::pair<double, double> range = RobustRange(heights);
+  const double low = range.first, top = range.second;
   if (!(top > 0.01) || !(top > low)) return false;
   const double bin_height = (top - low) / kProfileBins;
   auto profile = [&](const std::vector<double>& h, const std::vector<double>& r) {

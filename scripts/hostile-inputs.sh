@@ -329,6 +329,12 @@ values[6:9] = ['5.', '7.', '0.']
 open(sys.argv[2], 'w').write(text[:m.start(2)] + ', '.join(values) + text[m.end(2):])
 EOF
 expect_error "calibration bottom row 5 7 0" scan "0 0 1" 30 -- scan --frames "$F/scan" --calibration "$F/row.yaml" --out c.ply
+# Found by calibration_yaml_fuzz (2026-12-05): OpenCV 4.6's YAML parser loops forever on it.
+printf '%%YAML:1.0\n---%%YAML:1\nc.0\n--a' > "$F/twice.yaml"
+expect_error "calibration with a second %YAML header" scan "%YAML directive" 30 -- scan --frames "$F/scan" --calibration "$F/twice.yaml" --out c.ply
+# Found by frames_json_fuzz (2026-12-05): a number overflow was an "internal error".
+mkdir -p "$F/overflow" && printf '{"format": "sope-frames/1", "camera": {"width": 888.38886E8887}}' > "$F/overflow/frames.json"
+expect_error "frames.json number overflow" decode "not valid JSON" 30 -- decode --frames "$F/overflow" --out d
 expect_error "--object-size 0" simulate "--object-size" 30 -- $SPHERE --object-size 0 --out o
 expect_error "--object-size nan" simulate "--object-size" 30 -- $SPHERE --object-size nan --out o
 expect_error "--backdrop nan" simulate "--backdrop" 30 -- $SPHERE --backdrop nan --out o
