@@ -27,9 +27,8 @@ namespace {
 // metres (no structured-light rig works at 20 m): most likely millimetres.
 constexpr double kImplausibleMedianRange = 20.0;
 
-// "" or the hint that `cloud` (unit given or not) looks like millimetres, not metres.
-std::string UnitHint(const PointCloud& cloud, bool unit_given) {
-  if (unit_given) return "";
+// "" or the hint that `cloud` looks like millimetres, not metres.
+std::string UnitHint(const PointCloud& cloud) {
   std::vector<float> ranges;
   const size_t step = std::max<size_t>(1, cloud.size() / 4096);
   for (size_t i = 0; i < cloud.size(); i += step) {
@@ -106,7 +105,8 @@ int RunRecognise(int argc, char** argv) {
   if (cloud_unit != 1.0) {
     for (Eigen::Vector3f& p : cloud.points) p *= static_cast<float>(cloud_unit);
   }
-  const std::string hint = UnitHint(cloud, cloud_units_option->count() > 0);
+  // Only when no unit was given: a user who gave one meant it.
+  const std::string hint = cloud_units_option->count() > 0 ? "" : UnitHint(cloud);
   std::unique_ptr<FaissCoarseIndex> coarse_index;
   if (!coarse_index_path.empty()) {
     coarse_index = FaissCoarseIndex::Read(coarse_index_path, db->codes().bits, db->num_views());

@@ -165,14 +165,11 @@ int RunSingleObjectSimulation(const SingleObjectScene& object, const SensorOptio
     placement.size = *object.size;
   } else if (object.mesh_unit > 0.0) {
     placement.size = mesh_diagonal * object.mesh_unit;
-  } else {
-    const double diagonal = mesh.BoundingDiagonal();
-    if (!IsPlausibleDiagonal(diagonal)) {
-      placement.size = kDefaultObjectSize;
-      spdlog::info("mesh diagonal is {:.3g} units: scaling it to {} m (use --units or "
-                   "--object-size)",
-                   diagonal, kDefaultObjectSize);
-    }
+  } else if (!IsPlausibleDiagonal(mesh_diagonal)) {
+    placement.size = kDefaultObjectSize;
+    spdlog::info("mesh diagonal is {:.3g} units: scaling it to {} m (use --units or "
+                 "--object-size)",
+                 mesh_diagonal, kDefaultObjectSize);
   }
   Scene scene;
   scene.objects.push_back(PlaceObject(mesh, placement));

@@ -127,7 +127,7 @@ RigCalibration ReadForeignCalibration(const std::string& path, ForeignCalibratio
                                       int projector_height) {
   const std::string where = fmt::format("{} ({})", path, ToString(format));
   cv::FileStorage fs;
-  OpenFileStorageForReading(path, "calibration " + where, &fs);
+  OpenFileStorageForReading(path, ToString(format) + " calibration", &fs);
 
   RigCalibration calibration;
   cv::Mat rotation, translation;

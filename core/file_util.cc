@@ -274,18 +274,18 @@ std::string ReadFileToString(const std::string& path, const std::string& what) {
   return contents;
 }
 
-void OpenFileStorageForReading(const std::string& path, const std::string& label,
+void OpenFileStorageForReading(const std::string& path, const std::string& what,
                                cv::FileStorage* fs) {
-  const std::string text = ReadFileToString(path, label);
+  const std::string text = ReadFileToString(path, what);
   SOPE_CHECK(text.find("%YAML", 1) == std::string::npos,
-             "{}: a %YAML directive after the start of the file (one YAML document only)",
-             label);
+             "{} {}: a %YAML directive after the start of the file (one YAML document only)",
+             what, path);
   try {
     fs->open(path, cv::FileStorage::READ);
   } catch (const std::exception&) {  // cv::Exception, and std::length_error from its parser
-    SOPE_THROW("{}: not a readable OpenCV YAML/XML file", label);
+    SOPE_THROW("{} {}: not a readable OpenCV YAML/XML file", what, path);
   }
-  SOPE_CHECK(fs->isOpened(), "{}: not a readable OpenCV YAML/XML file", label);
+  SOPE_CHECK(fs->isOpened(), "{} {}: not a readable OpenCV YAML/XML file", what, path);
 }
 
 void WriteFileAtomic(const std::string& path, const std::string& contents) {

@@ -52,12 +52,12 @@ std::string ReadFileToString(const std::string& path, const std::string& what);
 void WriteFileAtomic(const std::string& path, const std::string& contents);
 
 // Opens an OpenCV FileStorage file (YAML or XML) at `path` for reading into *fs. Every
-// failure is one sope::Error "<label>: <reason>": not a readable regular file, the parser's
+// failure is one sope::Error "<what> <path>: <reason>": not a readable regular file, the parser's
 // exceptions (cv::Exception, and std:: exceptions its YAML parser throws), a file it opens
 // as nothing — and, checked before parsing, a "%YAML" directive after the file's start
 // (a second YAML document's header): OpenCV 4.6's parser loops forever on some of those
 // (found by calibration_yaml_fuzz: "%YAML:1.0\n---%YAML:1\nc0\n--a").
-void OpenFileStorageForReading(const std::string& path, const std::string& label,
+void OpenFileStorageForReading(const std::string& path, const std::string& what,
                                cv::FileStorage* fs);
 
 // Reads an image with cv::imread flags (IMREAD_UNCHANGED by default); throws sope::Error

@@ -115,7 +115,7 @@ double RigCalibration::BaselineLength() const {
 
 RigCalibration ReadRigCalibration(const std::string& path) {
   cv::FileStorage fs;
-  OpenFileStorageForReading(path, "calibration " + path, &fs);
+  OpenFileStorageForReading(path, "calibration", &fs);
   // Keys are looked up in the top-level map; OpenCV asserts (throws) on anything else.
   SOPE_CHECK(fs.root().isMap(), "calibration {}: not a calibration file (the top level is not a "
              "map of keys)", path);

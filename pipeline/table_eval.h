@@ -24,9 +24,10 @@ namespace sope {
 
 struct TableEvalOptions {
   // Mesh specs (files or builtin:CLASS[:SEED]) in the database: each scene shows
-  // min_objects–max_objects of them drawn at random, each scaled as build-db scales it
-  // (kept when its size is plausible in metres, else to a 0.25 m diagonal: the database's
-  // model, whatever the file's units). Empty: procedural objects of the
+  // min_objects–max_objects of them drawn at random, each scaled as build-db scaled it
+  // (by the database's mesh unit, build-db --units; without one, kept when its size is
+  // plausible in metres, else to a 0.25 m diagonal): the database's model, whatever the
+  // file's units. Empty: procedural objects of the
   // database's procedural classes, unseen instances (VirtualTableSource's default).
   std::vector<std::string> meshes;
   int scenes = 10;
