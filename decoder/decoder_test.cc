@@ -920,6 +920,10 @@ TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
     bool sixteen_bit;
     bool scan_defaults = false;  // sub-pixel edges and code consistency
     int threads = 1;
+    // 300 × 200: 9 and 8 bits. 1500 × 1000: 11 and 10 bits, so the batch decoder's bit
+    // passes take them in groups of 4, 2 and 1 (AccumulateInverseBitGroups), the
+    // incremental one bit at a time.
+    bool wide_projector = false;
   };
   const std::vector<Variant> variants = {
       {"inverses", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, false},
@@ -938,14 +942,19 @@ TEST(IncrementalDecode, GivesTheBatchMapInAnyArrivalOrder) {
       {"2 threads", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, false, false, 2},
       {"scan defaults, 2 threads", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, false, true,
        2},
+      {"11 and 10 bits", true, PatternAxes::kXY, BitDecision::kAuto, 0.0, false, false, 1, true},
+      {"11 and 10 bits, relative threshold", true, PatternAxes::kXY, BitDecision::kAuto, 0.2,
+       false, false, 1, true},
+      {"11 and 10 bits, no white/black", false, PatternAxes::kXY, BitDecision::kAuto, 0.0, false,
+       false, 1, true},
   };
   for (const Variant& variant : variants) {
     SCOPED_TRACE(variant.name);
     SceneOptions scene;
     scene.camera_width = 517;  // not a multiple of the chunk size
     scene.camera_height = 301;
-    scene.patterns.projector_width = 300;
-    scene.patterns.projector_height = 200;
+    scene.patterns.projector_width = variant.wide_projector ? 1500 : 300;
+    scene.patterns.projector_height = variant.wide_projector ? 1000 : 200;
     scene.patterns.white_black = variant.white_black;
     scene.patterns.axes = variant.axes;
     scene.sixteen_bit = variant.sixteen_bit;
