@@ -319,20 +319,27 @@ void AccumulateMinMax(const Pixel* __restrict frame, int n, Pixel* __restrict le
 // frames; clamped to [−1, max + 1], which keeps every comparison with a pixel exact.
 template <typename Pixel, typename Wide>
 void ComputeRobustBounds(int n, const Pixel* __restrict level_max,
-                         const Pixel* __restrict level_min, const Thresholds& thresholds,
-                         Wide* __restrict direct_minus_slack, Wide* __restrict global_plus_slack,
-                         uint8_t* __restrict direct_dominates, uint8_t* __restrict too_dark) {
+                         const Pixel* __restrict level_min, const Pixel* __restrict ambient,
+                         const Thresholds& thresholds, Wide* __restrict direct_minus_slack,
+                         Wide* __restrict global_plus_slack, uint8_t* __restrict direct_dominates,
+                         uint8_t* __restrict too_dark) {
   constexpr float kLowest = -1.0f;
   constexpr float kHighest = static_cast<float>(std::numeric_limits<Pixel>::max()) + 1.0f;
   const float black_level = thresholds.black_level;
   const float min_direct = thresholds.min_direct;
   const float robust_margin = thresholds.robust_margin;
   for (int i = 0; i < n; ++i) {
-    const DirectGlobal light = SeparateDirectGlobal(static_cast<float>(level_max[i]),
-                                                    static_cast<float>(level_min[i]), black_level);
+    // The light that is not the projector's (the black frame: the room's light, the
+    // camera's offset) is in every frame alike: it is neither direct nor global light of
+    // the projector. The split is made without it, and the bounds, which the frames'
+    // values are compared with, carry it again.
+    const float offset = ambient != nullptr ? static_cast<float>(ambient[i]) : 0.0f;
+    const DirectGlobal light =
+        SeparateDirectGlobal(static_cast<float>(level_max[i]) - offset,
+                             static_cast<float>(level_min[i]) - offset, black_level);
     const RobustBounds<float> bounds = RobustBoundsOf(light, min_direct, robust_margin);
-    const float low = std::ceil(bounds.direct_minus_slack);
-    const float high = std::floor(bounds.global_plus_slack);
+    const float low = std::ceil(bounds.direct_minus_slack + offset);
+    const float high = std::floor(bounds.global_plus_slack + offset);
     direct_minus_slack[i] = static_cast<Wide>(std::min(std::max(low, kLowest), kHighest));
     global_plus_slack[i] = static_cast<Wide>(std::min(std::max(high, kLowest), kHighest));
     direct_dominates[i] = bounds.direct_dominates;
@@ -939,8 +946,10 @@ class ChunkDecoder {
     for (int index : plan_.direct_global_frames) {
       AccumulateMinMax(Frame(index, begin), n, ws.level_max, ws.level_min);
     }
-    ComputeRobustBounds(n, ws.level_max, ws.level_min, thresholds_, ws.direct_minus_slack,
-                        ws.global_plus_slack, ws.direct_dominates, ws.too_dark);
+    const Pixel* ambient = plan_.black >= 0 ? Frame(plan_.black, begin) : nullptr;
+    ComputeRobustBounds(n, ws.level_max, ws.level_min, ambient, thresholds_,
+                        ws.direct_minus_slack, ws.global_plus_slack, ws.direct_dominates,
+                        ws.too_dark);
   }
 
   template <typename Margin>
