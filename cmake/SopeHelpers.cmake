@@ -20,7 +20,9 @@ set(SOPE_TEST_OPTIMIZATION -O1 CACHE STRING
 option(SOPE_CTEST_PER_CASE "One CTest entry per GoogleTest case (default: per binary)" OFF)
 # Sanitizer builds run 3-10x slower (calibrate_e2e_test's cases ~9 min each under ASan on an
 # idle 2-core machine), so their timeouts are scaled; the limits catch hangs, not slowness.
-if(SOPE_SANITIZE)
+# SOPE_SANITIZERS (SopeCompiler.cmake) is the list in effect: SOPE_SANITIZE's, or ASan +
+# UBSan in a fuzzing build, whose tests then get the same timeouts and environments.
+if(NOT SOPE_SANITIZERS STREQUAL "")
   set(SOPE_TEST_TIMEOUT_SCALE 3)
 else()
   set(SOPE_TEST_TIMEOUT_SCALE 1)
@@ -89,7 +91,7 @@ function(sope_add_test)
     if(ARG_LABELS)
       list(APPEND properties LABELS "${ARG_LABELS}")
     endif()
-    if(SOPE_SANITIZE AND ARG_SANITIZER_ENV)
+    if(NOT SOPE_SANITIZERS STREQUAL "" AND ARG_SANITIZER_ENV)
       list(APPEND properties ENVIRONMENT "${ARG_SANITIZER_ENV}")
     endif()
     # Listing the tests runs the program once before ctest starts it: on a loaded or
@@ -105,7 +107,7 @@ function(sope_add_test)
     if(ARG_LABELS)
       set_tests_properties(${ARG_NAME} PROPERTIES LABELS "${ARG_LABELS}")
     endif()
-    if(SOPE_SANITIZE AND ARG_SANITIZER_ENV)
+    if(NOT SOPE_SANITIZERS STREQUAL "" AND ARG_SANITIZER_ENV)
       set_tests_properties(${ARG_NAME} PROPERTIES ENVIRONMENT "${ARG_SANITIZER_ENV}")
     endif()
   endif()
