@@ -143,30 +143,8 @@ struct Outputs {
 // max_diff ← max(max_diff, |p − p̄|) as the contrast when there are no white/black frames.
 // kPerPixelThreshold false: min_margin[0] holds one threshold for all pixels (no relative
 // threshold), which keeps the hot loop to its two streams.
-template <typename Pixel, typename Margin, int kScale, bool kTrackMaxDiff,
-          bool kPerPixelThreshold = true>
-void AccumulateInverseBit(const Pixel* __restrict pattern, const Pixel* __restrict inverse, int n,
-                          const Margin* __restrict min_margin, uint8_t* __restrict code,
-                          uint8_t* __restrict weak, Margin* __restrict margin,
-                          Pixel* __restrict max_diff) {
-  const Margin uniform_margin = min_margin[0];
-  for (int block = 0; block < n; block += kPrefetchBlockPixels) {
-    PrefetchNextChunk<Pixel, 2>(block, {pattern, inverse});
-    for (int i = block, end = BlockEnd(block, n); i < end; ++i) {
-      const Pixel a = pattern[i];
-      const Pixel b = inverse[i];
-      const Pixel diff = static_cast<Pixel>(std::max(a, b) - std::min(a, b));
-      const Margin scaled = static_cast<Margin>(kScale * diff);
-      const bool undecided = scaled < (kPerPixelThreshold ? min_margin[i] : uniform_margin);
-      code[i] = static_cast<uint8_t>((code[i] << 1) | (a > b));
-      weak[i] = static_cast<uint8_t>((weak[i] << 1) | undecided);
-      margin[i] = std::min(margin[i], undecided ? std::numeric_limits<Margin>::max() : scaled);
-      if constexpr (kTrackMaxDiff) max_diff[i] = std::max(max_diff[i], diff);
-    }
-  }
-}
-
-// One bit of AccumulateInverseBit on a pixel's code, weak and margin values.
+// One bit on a pixel's code, weak and margin values (AccumulateInverseBit and
+// AccumulateInverseBitGroup); diff_out: |p − p̄|.
 template <typename Pixel, typename Margin, int kScale>
 inline void InverseBitStep(Pixel a, Pixel b, Margin threshold, uint8_t* code, uint8_t* weak,
                            Margin* margin, Pixel* diff_out) {
@@ -177,6 +155,25 @@ inline void InverseBitStep(Pixel a, Pixel b, Margin threshold, uint8_t* code, ui
   *weak = static_cast<uint8_t>((*weak << 1) | undecided);
   *margin = std::min(*margin, undecided ? std::numeric_limits<Margin>::max() : scaled);
   *diff_out = diff;
+}
+
+template <typename Pixel, typename Margin, int kScale, bool kTrackMaxDiff,
+          bool kPerPixelThreshold = true>
+void AccumulateInverseBit(const Pixel* __restrict pattern, const Pixel* __restrict inverse, int n,
+                          const Margin* __restrict min_margin, uint8_t* __restrict code,
+                          uint8_t* __restrict weak, Margin* __restrict margin,
+                          Pixel* __restrict max_diff) {
+  const Margin uniform_margin = min_margin[0];
+  for (int block = 0; block < n; block += kPrefetchBlockPixels) {
+    PrefetchNextChunk<Pixel, 2>(block, {pattern, inverse});
+    for (int i = block, end = BlockEnd(block, n); i < end; ++i) {
+      Pixel diff = 0;
+      InverseBitStep<Pixel, Margin, kScale>(pattern[i], inverse[i],
+                                            kPerPixelThreshold ? min_margin[i] : uniform_margin,
+                                            &code[i], &weak[i], &margin[i], &diff);
+      if constexpr (kTrackMaxDiff) max_diff[i] = std::max(max_diff[i], diff);
+    }
+  }
 }
 
 // Two or four consecutive bits of one code plane in one pass (pattern0 / inverse0 the most
