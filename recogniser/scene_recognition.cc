@@ -394,39 +394,54 @@ std::optional<Hypothesis> FlippedHypothesis(const SceneContext& ctx, const Hypot
   return flipped;
 }
 
+// The stable faces of the hull of `h`'s model (camera frame, outward normals) that a turn
+// of at most max_turn_deg puts on the table, the least turn first.
+std::vector<Eigen::Vector3d> RestingFacesWithin(const SceneContext& ctx, const Hypothesis& h,
+                                                double max_turn_deg) {
+  const Suggestion& s = h.recognition.suggestions[0];
+  const Eigen::Vector3d down = -ctx.plane.normal.cast<double>();
+  const double min_alignment = std::cos(max_turn_deg * M_PI / 180.0);
+  std::vector<std::pair<double, Eigen::Vector3d>> faces;
+  for (const Eigen::Vector3d& normal :
+       ctx.scene_recogniser.RestingNormals(s.model, ctx.options.model_leaf)) {
+    const Eigen::Vector3d face = s.cam_from_model.rotation * normal;
+    if (face.dot(down) >= min_alignment) faces.emplace_back(face.dot(down), face);
+  }
+  std::stable_sort(faces.begin(), faces.end(),
+                   [](const auto& a, const auto& b) { return a.first > b.first; });
+  std::vector<Eigen::Vector3d> out;
+  for (const auto& [alignment, face] : faces) out.push_back(face);
+  return out;
+}
+
+// `h` turned onto `face` (camera frame, a stable face of its model's hull) about its model's
+// centre and put down on the table whatever its height was; empty when no lowest point
+// was found.
+std::optional<Hypothesis> TurnedOntoFace(const SceneContext& ctx, const Hypothesis& h,
+                                         const Eigen::Vector3d& face) {
+  const Eigen::Vector3d down = -ctx.plane.normal.cast<double>();
+  Hypothesis rested = h;
+  if (!TurnOntoTable(ctx, Eigen::Quaterniond::FromTwoVectors(face, down).toRotationMatrix(),
+                     std::numeric_limits<double>::infinity(), &rested)) {
+    return std::nullopt;
+  }
+  rested.rested = true;
+  return rested;
+}
+
 // The hypothesis turned the least that puts a stable face of its model's hull on the
 // table (about the model's centre; at most max_rest_turn_deg), then put down on it. Empty
 // when no resting face is that near.
 std::optional<Hypothesis> RestedHypothesis(const SceneContext& ctx, const Hypothesis& h) {
   const SceneRecognitionOptions& options = ctx.options;
   if (options.max_rest_turn_deg <= 0) return std::nullopt;
-  const Suggestion& s = h.recognition.suggestions[0];
-  const Eigen::Vector3d down = -ctx.plane.normal.cast<double>();
-  const Eigen::Matrix3d& rotation = s.cam_from_model.rotation;
-  const std::vector<Eigen::Vector3d>& normals =
-      ctx.scene_recogniser.RestingNormals(s.model, options.model_leaf);
-  double best = std::cos(options.max_rest_turn_deg * M_PI / 180.0);
-  std::optional<Eigen::Vector3d> face;
-  for (const Eigen::Vector3d& normal : normals) {
-    const double alignment = (rotation * normal).dot(down);
-    if (alignment >= best) {
-      best = alignment;
-      face = rotation * normal;
-    }
-  }
-  if (!face) {
-    spdlog::debug("{}: no resting face within {:.0f}° of its pose ({} faces)",
-                  ctx.database.model(s.model).name, options.max_rest_turn_deg, normals.size());
+  const std::vector<Eigen::Vector3d> faces = RestingFacesWithin(ctx, h, options.max_rest_turn_deg);
+  if (faces.empty()) {
+    spdlog::debug("{}: no resting face within {:.0f}° of its pose",
+                  h.recognition.suggestions[0].model_name, options.max_rest_turn_deg);
     return std::nullopt;
   }
-  Hypothesis rested = h;
-  // Turned onto the face it is put down whatever its height was (it did not rest).
-  if (!TurnOntoTable(ctx, Eigen::Quaterniond::FromTwoVectors(*face, down).toRotationMatrix(),
-                     std::numeric_limits<double>::infinity(), &rested)) {
-    return std::nullopt;
-  }
-  rested.rested = true;
-  return rested;
+  return TurnedOntoFace(ctx, h, faces.front());
 }
 
 // Puts the hypothesis down on the table: snapped when it nearly rests on it, else turned
@@ -439,11 +454,66 @@ bool PutOnTable(const SceneContext& ctx, Hypothesis* h) {
   return true;
 }
 
+IcpResult RefineOnCluster(const SceneContext& ctx, const PoseQuery& query,
+                          const PointCloud& surface, const Rigid3d& canonical_from_model,
+                          Hypothesis* h, int iterations = 0);
+void ScoreOnCluster(const SceneContext& ctx, const PoseQuery& query,
+                    const Rigid3d& canonical_from_model, Hypothesis* h);
+
+// `h` (snapped onto the table by a large shift: its recognised pose sank into the table or
+// floated above it) turned onto each of its model's resting faces (the least turns first,
+// at most rest_refit_faces; a lying object seen in part can be a quarter turn or more off
+// about its long axis) and refined there on the points it was recognised from
+// (`query_of`) with the table as a constraint: rounds of a short ICP (gate_iterations),
+// each followed by turning the pose back onto its nearest resting face and putting it
+// down (ICP alone turns a partly seen lying object back into the table); scored on those
+// points: the best-scoring one. Empty when the model has no resting face or the points
+// have no pose query.
+std::optional<Hypothesis> RefitOnRestingFace(const SceneContext& ctx, const Hypothesis& h,
+                                             const std::function<const PoseQuery*()>& query_of) {
+  constexpr int kRounds = 3;
+  std::vector<Eigen::Vector3d> faces = RestingFacesWithin(ctx, h, 180.0);
+  if (faces.size() > static_cast<size_t>(ctx.options.rest_refit_faces)) {
+    faces.resize(ctx.options.rest_refit_faces);
+  }
+  if (faces.empty()) return std::nullopt;
+  const PoseQuery* query = query_of();
+  if (query == nullptr) return std::nullopt;
+  const Rigid3d canonical_from_cam =
+      Rigid3d(query->cam_from_canonical, Eigen::Vector3d::Zero()).Inverse();
+  const PointCloud& surface = ctx.scene_recogniser.ModelSurface(
+      h.recognition.suggestions[0].model, ctx.options.model_leaf);
+  const int iterations = ctx.options.recognition.pose.gate_iterations;
+  std::optional<Hypothesis> best;
+  for (const Eigen::Vector3d& face : faces) {
+    std::optional<Hypothesis> rested = TurnedOntoFace(ctx, h, face);
+    for (int round = 0; rested && round < kRounds; ++round) {
+      RefineOnCluster(ctx, *query, surface,
+                      canonical_from_cam * rested->recognition.suggestions[0].cam_from_model,
+                      &*rested, iterations);
+      const std::vector<Eigen::Vector3d> nearest = RestingFacesWithin(ctx, *rested, 90.0);
+      rested = nearest.empty() ? std::nullopt : TurnedOntoFace(ctx, *rested, nearest.front());
+    }
+    if (!rested) continue;
+    ScoreOnCluster(ctx, *query,
+                   canonical_from_cam * rested->recognition.suggestions[0].cam_from_model,
+                   &*rested);
+    if (!best || rested->recognition.suggestions[0].score >
+                     best->recognition.suggestions[0].score) {
+      best = std::move(rested);
+    }
+  }
+  return best;
+}
+
 // From `recognition` (RecogniseSideBySide) of points of `cluster`, adds up to
 // hypotheses_per_cluster hypotheses (each posed suggestion scoring at least
-// min_hypothesis_score, put down on the table, and its flipped twin) to the pool.
+// min_hypothesis_score, put down on the table, and its flipped twin) to the pool; with
+// `query_of` (the pose query of the recognised points), a suggestion snapped by at least
+// rest_refit_from also adds its refit on a resting face (RefitOnRestingFace).
 void AddClusterHypotheses(const SceneContext& ctx, int cluster,
-                          const RecognitionResult& recognition, HypothesisPool* pool) {
+                          const RecognitionResult& recognition, HypothesisPool* pool,
+                          const std::function<const PoseQuery*()>& query_of = {}) {
   const SceneRecognitionOptions& options = ctx.options;
   if (pool->cluster_results[cluster].empty()) pool->cluster_results[cluster] = recognition;
   const bool on_table = options.snap_to_plane && ctx.plane.found;
@@ -473,6 +543,19 @@ void AddClusterHypotheses(const SceneContext& ctx, int cluster,
       unsnapped = h;
     }
     if (on_table && !PutOnTable(ctx, &h)) continue;
+    if (on_table && query_of && options.rest_refit_from > 0 && !h.rested &&
+        std::abs(h.snap) >= options.rest_refit_from &&
+        ClassProbability(recognition, suggestion.class_index) >=
+            options.rest_refit_min_class_probability) {
+      std::optional<Hypothesis> refit = RefitOnRestingFace(ctx, h, query_of);
+      if (refit && refit->recognition.suggestions[0].score >= options.rest_refit_min_score) {
+        spdlog::debug("cluster {}: {} snapped {:.1f} mm, refit on a resting face: score {:.3f}, "
+                      "snapped {:.1f} mm",
+                      cluster, suggestion.model_name, 1e3 * h.snap,
+                      refit->recognition.suggestions[0].score, 1e3 * refit->snap);
+        pool->hypotheses.push_back(std::move(*refit));
+      }
+    }
     if (unsnapped && !h.rested && std::abs(h.snap) >= options.keep_unsnapped_from) {
       unsnapped->lift = -h.snap;
       pool->hypotheses.push_back(std::move(*unsnapped));
@@ -516,7 +599,7 @@ constexpr size_t kTwinIcpPoints = 1500;
 // fit on all of them). Sets `h`'s front suggestion's pose (camera frame) and ICP figures.
 IcpResult RefineOnCluster(const SceneContext& ctx, const PoseQuery& query,
                         const PointCloud& surface, const Rigid3d& canonical_from_model,
-                        Hypothesis* h) {
+                        Hypothesis* h, int iterations) {
   std::vector<Eigen::Vector3f> points, normals;
   const size_t stride = std::max<size_t>(1, surface.size() / kTwinIcpPoints);
   for (size_t i = 0; i < surface.size(); i += stride) {
@@ -524,7 +607,8 @@ IcpResult RefineOnCluster(const SceneContext& ctx, const PoseQuery& query,
     normals.push_back(surface.normals[i]);
   }
   const IcpResult icp =
-      RefinePose(points, normals, query, canonical_from_model, ctx.options.recognition.pose);
+      RefinePose(points, normals, query, canonical_from_model, ctx.options.recognition.pose,
+                 iterations);
   const Rigid3d cam_from_canonical(query.cam_from_canonical, Eigen::Vector3d::Zero());
   Suggestion& front = h->recognition.suggestions[0];
   front.cam_from_model = cam_from_canonical * icp.canonical_from_model;
@@ -1202,8 +1286,8 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     const int cluster_a = joins[k].cluster_a, cluster_b = joins[k].cluster_b;
     const size_t before = pool->hypotheses.size();
     const RecognitionResult& recognition = recognised[k];
-    AddClusterHypotheses(ctx, owner, recognition, pool);
     LazyPoseQuery joined_query(ctx, joined);
+    AddClusterHypotheses(ctx, owner, recognition, pool, joined_query.Getter());
     // A handle the shadow cut off the body: turned about the body's axis and refined on
     // both parts, the model can put it where it was seen.
     if (options.roll_steps > 1) {
@@ -1235,9 +1319,9 @@ std::vector<size_t> AddPartHypotheses(const SceneContext& ctx,
   for (size_t k = 0; k < parts.size(); ++k) {
     const auto& [cluster, part] = parts[k];
     const size_t before = pool->hypotheses.size();
-    AddClusterHypotheses(ctx, cluster, recognised[k], pool);
+    LazyPoseQuery part_query(ctx, part);
+    AddClusterHypotheses(ctx, cluster, recognised[k], pool, part_query.Getter());
     if (ctx.options.part_size_looks) {
-      LazyPoseQuery part_query(ctx, part);
       AddSizeLooksOn(ctx, recognised[k], cluster, part, part_query.Getter(), pool);
     }
     added[k] = pool->hypotheses.size() - before;
@@ -1881,6 +1965,13 @@ void SceneRecognitionOptions::Check() const {
   SOPE_CHECK(max_rest_turn_deg >= 0 && max_rest_turn_deg <= 180,
              "scene recognition: max rest turn must be in [0, 180] degrees, got {}",
              max_rest_turn_deg);
+  SOPE_CHECK(rest_refit_from >= 0 && rest_refit_faces >= 1 &&
+                 rest_refit_min_class_probability >= 0 && rest_refit_min_class_probability <= 1 &&
+                 rest_refit_min_score >= 0 && rest_refit_min_score <= 1,
+             "scene recognition: need rest refit from ≥ 0 m, rest refit faces ≥ 1 and its "
+             "min class probability and min score in [0, 1], got {}, {}, {} and {}",
+             rest_refit_from, rest_refit_faces, rest_refit_min_class_probability,
+             rest_refit_min_score);
   SOPE_CHECK(upright_max_tilt_deg >= 0 && upright_max_tilt_deg < 45,
              "scene recognition: upright max tilt must be in [0, 45) degrees, got {}",
              upright_max_tilt_deg);
@@ -2079,7 +2170,9 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     for (const ObjectCluster& c : clusters) clouds.push_back(&c.cloud);
     const std::vector<RecognitionResult> first_looks = RecogniseSideBySide(ctx, clouds, &pool);
     for (size_t c = 0; c < clusters.size(); ++c) {
-      AddClusterHypotheses(ctx, static_cast<int>(c), first_looks[c], &pool);
+      const int cluster = static_cast<int>(c);
+      AddClusterHypotheses(ctx, cluster, first_looks[c], &pool,
+                           [&] { return ClusterPoseQuery(ctx, cluster, &pool); });
     }
   }
   std::vector<HypothesisEvidence> evidence = VerifyPool(ctx, &pool);

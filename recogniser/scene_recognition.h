@@ -77,6 +77,19 @@ struct SceneRecognitionOptions {
   // max_rest_turn_deg) that puts a stable face of its model's hull on the table, then put
   // down on it. 0: such suggestions are dropped.
   double max_rest_turn_deg = 45.0;
+  // A posed suggestion snapped onto the table by at least rest_refit_from metres (its
+  // recognised pose sank into the table or floated: a lying object fitted to a part of it,
+  // turned about its long axis), of a class its recognition gives at least
+  // rest_refit_min_class_probability, also gets a refit: turned onto each of the
+  // rest_refit_faces resting faces of its model nearest its pose and refined there on the
+  // points it was recognised from with the table as a constraint (short ICPs, each followed
+  // by putting the pose back onto its nearest resting face); the best-scoring one, when it
+  // scores at least rest_refit_min_score on those points, is judged by the scene
+  // verification beside it (0: off).
+  double rest_refit_from = 0.01;
+  int rest_refit_faces = 3;
+  double rest_refit_min_class_probability = 0.5;
+  double rest_refit_min_score = 0.5;
   double stability_weight = 0.2;
   // The class evidence in the selection: a hypothesis's gain also loses class_weight × (1 −
   // the probability the recogniser gave its class) of its explained points — of two that
