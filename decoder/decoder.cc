@@ -135,14 +135,6 @@ struct Outputs {
   float* confidence = nullptr;
 };
 
-// Code words are accumulated 8 bits per plane (Workspace::code), so that every operation
-// of the per-bit loops is on bytes.
-//
-// code ← 2·code + [p > p̄]; weak ← 2·weak + [kScale·|p − p̄| < min_margin];
-// margin ← min(margin, kScale·|p − p̄|) over the decided (not weak) bits; optionally
-// max_diff ← max(max_diff, |p − p̄|) as the contrast when there are no white/black frames.
-// kPerPixelThreshold false: min_margin[0] holds one threshold for all pixels (no relative
-// threshold), which keeps the hot loop to its two streams.
 // One bit on a pixel's code, weak and margin values (AccumulateInverseBit and
 // AccumulateInverseBitGroup); diff_out: |p − p̄|.
 template <typename Pixel, typename Margin, int kScale>
@@ -157,6 +149,14 @@ inline void InverseBitStep(Pixel a, Pixel b, Margin threshold, uint8_t* code, ui
   *diff_out = diff;
 }
 
+// Code words are accumulated 8 bits per plane (Workspace::code), so that every operation
+// of the per-bit loops is on bytes.
+//
+// code ← 2·code + [p > p̄]; weak ← 2·weak + [kScale·|p − p̄| < min_margin];
+// margin ← min(margin, kScale·|p − p̄|) over the decided (not weak) bits; optionally
+// max_diff ← max(max_diff, |p − p̄|) as the contrast when there are no white/black frames.
+// kPerPixelThreshold false: min_margin[0] holds one threshold for all pixels (no relative
+// threshold), which keeps the hot loop to its two streams.
 template <typename Pixel, typename Margin, int kScale, bool kTrackMaxDiff,
           bool kPerPixelThreshold = true>
 void AccumulateInverseBit(const Pixel* __restrict pattern, const Pixel* __restrict inverse, int n,

@@ -405,7 +405,8 @@ std::vector<Eigen::Vector3d> RestingFacesWithin(const SceneContext& ctx, const H
   for (const Eigen::Vector3d& normal :
        ctx.scene_recogniser.RestingNormals(s.model, ctx.options.model_leaf)) {
     const Eigen::Vector3d face = s.cam_from_model.rotation * normal;
-    if (face.dot(down) >= min_alignment) faces.emplace_back(face.dot(down), face);
+    const double alignment = face.dot(down);
+    if (alignment >= min_alignment) faces.emplace_back(alignment, face);
   }
   std::stable_sort(faces.begin(), faces.end(),
                    [](const auto& a, const auto& b) { return a.first > b.first; });

@@ -861,13 +861,6 @@ TEST_F(SceneRecognitionTest, TouchingObjectsInOneClusterAreBothFound) {
   EXPECT_TRUE(result.unknown.empty());
 }
 
-// A banana against a cracker box (YCB meshes of ../shared/data, posed as in scene 16 of
-// `sope eval --table --db <the 10 YCB meshes, 300 views> --scenes 20`): one Euclidean
-// cluster; its recognition finds the box, which leaves 26% of the cluster unexplained —
-// below remainder_fraction (0.3), and that remainder mixes the banana with the box's own
-// unexplained edge (a second connected part). Without remainder parts the banana is
-// missed; with them its part (~21% of the cluster) is recognised alone and both objects
-// are found, posed within ADD-S < 10% of their diameters.
 // YCB meshes of ../shared/data posed on a table as in a scene of `sope eval --table`: a
 // database of them (300 views), the scene (the table n·p + offset = 0 under the first
 // object, camera frame) and its scan through the virtual rig.
@@ -940,6 +933,13 @@ class YcbTableScene {
   PointCloud cloud_;
 };
 
+// A banana against a cracker box (YCB meshes of ../shared/data, posed as in scene 16 of
+// `sope eval --table --db <the 10 YCB meshes, 300 views> --scenes 20`): one Euclidean
+// cluster; its recognition finds the box, which leaves 26% of the cluster unexplained —
+// below remainder_fraction (0.3), and that remainder mixes the banana with the box's own
+// unexplained edge (a second connected part). Without remainder parts the banana is
+// missed; with them its part (~21% of the cluster) is recognised alone and both objects
+// are found, posed within ADD-S < 10% of their diameters.
 TEST(SceneRecognitionRemainderParts, ABananaAgainstACrackerBoxIsFoundInItsPart) {
   SOPE_REQUIRE_SHARED_DATA(data);
   Eigen::Matrix3d box_rotation, banana_rotation;
@@ -973,7 +973,8 @@ TEST(SceneRecognitionRemainderParts, ABananaAgainstACrackerBoxIsFoundInItsPart) 
 // remainder of the can's cluster) is turned ~13° about its long axis, so its far end sinks
 // 3 cm into the table; snapped up onto the table it fits 2–7% of its points and is
 // rejected. Its refit on a resting face (SceneRecognitionOptions::rest_refit_from: turned
-// onto the nearest stable face, ICP-refined on the remainder, put down again) is found.
+// onto each of the stable faces nearest its pose — the right one 96° away —, refined on the
+// remainder with the table as a constraint) is found.
 TEST(SceneRecognitionRestRefit, ABananaBetweenACanAndABottleIsFoundOnItsRestingFace) {
   SOPE_REQUIRE_SHARED_DATA(data);
   Eigen::Matrix3d banana, can, bottle;
