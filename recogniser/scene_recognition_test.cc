@@ -1423,5 +1423,50 @@ TEST(TableSegmentation, GridClustersEqualPclEuclideanClusters) {
   }
 }
 
+TEST(TableSegmentation, GridClustersEqualTheComponentsOfEveryPairWithinTheTolerance) {
+  // 3000 random points in a 6 cm cube with a 4 mm tolerance (many cells, many points per
+  // cell, chains across cell faces, edges and corners; negative coordinates too): the
+  // components must be exactly those of the brute-force graph of all pairs within the
+  // tolerance, in the order of their first point.
+  std::vector<Eigen::Vector3f> points;
+  uint64_t state = 7;
+  auto uniform = [&state] {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<float>((state >> 11) * 0x1.0p-53);
+  };
+  for (int i = 0; i < 3000; ++i) {
+    points.emplace_back(-0.03f + 0.06f * uniform(), -0.03f + 0.06f * uniform(),
+                        0.5f + 0.06f * uniform());
+  }
+  const double tolerance = 0.004;
+  std::vector<int> parent(points.size());
+  for (size_t i = 0; i < parent.size(); ++i) parent[i] = static_cast<int>(i);
+  const std::function<int(int)> root = [&](int i) {
+    return parent[i] == i ? i : parent[i] = root(parent[i]);
+  };
+  const float tolerance2 = static_cast<float>(tolerance * tolerance);
+  for (size_t i = 0; i < points.size(); ++i) {
+    for (size_t j = i + 1; j < points.size(); ++j) {
+      if ((points[j] - points[i]).squaredNorm() > tolerance2) continue;
+      const int a = root(static_cast<int>(i)), b = root(static_cast<int>(j));
+      parent[std::max(a, b)] = std::min(a, b);
+    }
+  }
+  std::vector<std::vector<int>> expected;
+  std::vector<int> component_of_root(points.size(), -1);
+  for (size_t i = 0; i < points.size(); ++i) {
+    const int r = root(static_cast<int>(i));
+    if (component_of_root[r] < 0) {
+      component_of_root[r] = static_cast<int>(expected.size());
+      expected.emplace_back();
+    }
+    expected[component_of_root[r]].push_back(static_cast<int>(i));
+  }
+  // Neither one blob nor dust: the test exercises joins and separations alike.
+  ASSERT_GT(expected.size(), 20u);
+  ASSERT_LT(expected.size(), points.size() / 2);
+  EXPECT_EQ(GridEuclideanClusters(points, tolerance), expected);
+}
+
 }  // namespace
 }  // namespace sope

@@ -106,19 +106,34 @@ std::vector<std::vector<int>> GridEuclideanClusters(const std::vector<Eigen::Vec
     }
     return i;
   };
-  for (size_t i = 0; i < n; ++i) {
-    const Eigen::Vector3i& c = cell_of[i];
-    for (int dz = -1; dz <= 1; ++dz) {
-      for (int dy = -1; dy <= 1; ++dy) {
-        for (int dx = -1; dx <= 1; ++dx) {
+  const auto join_close = [&](int i, int j) {
+    if ((points[j] - points[i]).squaredNorm() > tolerance2) return;
+    const int a = find(i), b = find(j);
+    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  };
+  // Cell by cell (each holds several points at once: a thinned surface puts ~(tolerance /
+  // leaf)² in one): the pairs within the cell, then those with each of the 13 neighbour
+  // cells that come after it (every pair of neighbour cells once) — a hash look-up per
+  // cell and neighbour rather than per point and neighbour. The components do not depend
+  // on the order in which the pairs are joined.
+  for (size_t k = 0; k < n;) {
+    size_t run_end = k;
+    while (run_end < n && keyed[run_end].first == keyed[k].first) ++run_end;
+    const int begin = static_cast<int>(k), end = static_cast<int>(run_end);
+    k = run_end;
+    for (int p = begin; p < end; ++p) {
+      for (int q = p + 1; q < end; ++q) join_close(keyed[p].second, keyed[q].second);
+    }
+    const Eigen::Vector3i& c = cell_of[keyed[begin].second];
+    for (int dz = 0; dz <= 1; ++dz) {
+      for (int dy = dz == 0 ? 0 : -1; dy <= 1; ++dy) {
+        for (int dx = dz == 0 && dy == 0 ? 1 : -1; dx <= 1; ++dx) {
           const auto it = cells.find(PackVoxelKey(c.x() + dx, c.y() + dy, c.z() + dz));
           if (it == cells.end()) continue;
-          for (int k = it->second.first; k < it->second.second; ++k) {
-            const int j = keyed[k].second;
-            if (j <= static_cast<int>(i)) continue;  // each pair once
-            if ((points[j] - points[i]).squaredNorm() > tolerance2) continue;
-            const int a = find(static_cast<int>(i)), b = find(j);
-            if (a != b) parent[std::max(a, b)] = std::min(a, b);
+          for (int p = begin; p < end; ++p) {
+            for (int q = it->second.first; q < it->second.second; ++q) {
+              join_close(keyed[p].second, keyed[q].second);
+            }
           }
         }
       }
