@@ -225,6 +225,9 @@ ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& pr
 void ScanAndRecogniseController::ScanTable(const FrameSet& frames, CorrespondenceMap* decoded,
                                            double decode_ms, ScanReport* report) {
   const Stopwatch watch;
+  // From the last frame, as the single-object path counts it: the live decoder's finish
+  // (decode_ms, before this call) and everything here.
+  const auto total_ms = [&] { return (decoded != nullptr ? decode_ms : 0.0) + watch.WallMs(); };
   ScanRecognition& out = report->result;
   SceneRecognitionOptions scene_options = options_.scene;
   scene_options.recognition = options_.recognition;
@@ -244,12 +247,15 @@ void ScanAndRecogniseController::ScanTable(const FrameSet& frames, Correspondenc
     out.message = fmt::format("no points: {} point(s) triangulated (no projector light on the "
                               "scene, or a wrong calibration?)",
                               cloud.size());
-    out.timing.total = watch.WallMs();
+    out.timing.total = total_ms();
     return;
   }
   SceneRecognitionResult scene = scene_recogniser_.Recognise(cloud, scene_options);
   out.timing.segment = scene.timing.segment;
-  out.timing.recognise = scene.timing.recognise + scene.timing.verify;
+  // Everything after the segmentation: the clusters' recognitions and verification, and
+  // the scene-level steps between them (second looks' refits, joins, rolled hypotheses,
+  // assembly) — so that the stages add up to frame_to_result.
+  out.timing.recognise = scene.timing.total - scene.timing.segment;
   if (scene.objects.empty()) {
     out.status = ScanStatus::kNoSuggestion;
     out.message = !scene.segmentation.message.empty()
@@ -262,7 +268,7 @@ void ScanAndRecogniseController::ScanTable(const FrameSet& frames, Correspondenc
     for (const int i : scene.objects.front().indices) out.object.points.push_back(cloud.points[i]);
   }
   report->scene = std::move(scene);
-  out.timing.total = watch.WallMs();
+  out.timing.total = total_ms();
 }
 
 std::vector<TableObjectMatch> MatchTableObjects(const SceneRecognitionResult& scene,
