@@ -2201,8 +2201,10 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     bool added = AddRemainderHypotheses(ctx, explained, left, has_accepted, &pool);
     const double t_remainder = look.WallMs();
     added |= AddTwinsOfUnexplained(ctx, evidence, unexplained, &pool);
+    const double t_twins_only = look.WallMs();
     const bool first_size_look = !pool.size_looks_taken;
     added |= AddSizeHypotheses(ctx, &pool);
+    const double t_sizes = look.WallMs();
     if (first_size_look) added |= AddRolledHypotheses(ctx, evidence, &pool);
     const double t_twins = look.WallMs();
     added |= AddSplitHypotheses(ctx, to_split, &pool);
@@ -2211,10 +2213,12 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     const double t_join = look.WallMs();
     if (!added) break;
     evidence = VerifyPool(ctx, &pool);
-    spdlog::debug("second looks, round {}: remainders {:.1f} ms, twins {:.1f} ms, splits {:.1f} "
-                  "ms, joins {:.1f} ms, verification {:.1f} ms; {} hypotheses",
-                  round, t_remainder, t_twins - t_remainder, t_split - t_twins, t_join - t_split,
-                  look.WallMs() - t_join, pool.hypotheses.size());
+    spdlog::debug("second looks, round {}: remainders {:.1f} ms, twins {:.1f} ms, sizes {:.1f} "
+                  "ms, rolled {:.1f} ms, splits {:.1f} ms, joins {:.1f} ms, verification {:.1f} "
+                  "ms; {} hypotheses",
+                  round, t_remainder, t_twins_only - t_remainder, t_sizes - t_twins_only,
+                  t_twins - t_sizes, t_split - t_twins, t_join - t_split, look.WallMs() - t_join,
+                  pool.hypotheses.size());
   }
   result.hypotheses = static_cast<int>(pool.hypotheses.size());
   LogHypotheses(ctx, pool, evidence);
