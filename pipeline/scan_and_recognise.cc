@@ -168,7 +168,7 @@ ScanReport ScanAndRecogniseController::Scan(int index, const CaptureProgress& pr
   if (options_.tabletop && options_.warm_up && !warm_up_.joinable()) {
     warm_up_ = std::thread([this] {
       try {
-        scene_recogniser_.WarmUp(options_.scene, &stop_warm_up_);
+        SceneRecogniserInUse().WarmUp(options_.scene, &stop_warm_up_);
       } catch (const std::exception& e) {
         // The recognition builds what it needs itself (and reports its own errors).
         spdlog::debug("scene recogniser warm-up stopped: {}", e.what());
@@ -250,7 +250,7 @@ void ScanAndRecogniseController::ScanTable(const FrameSet& frames, Correspondenc
     out.timing.total = total_ms();
     return;
   }
-  SceneRecognitionResult scene = scene_recogniser_.Recognise(cloud, scene_options);
+  SceneRecognitionResult scene = SceneRecogniserInUse().Recognise(cloud, scene_options);
   out.timing.segment = scene.timing.segment;
   // Everything after the segmentation: the clusters' recognitions and verification, and
   // the scene-level steps between them (second looks' refits, joins, rolled hypotheses,

@@ -61,6 +61,12 @@ struct ScanAndRecogniseOptions {
   // first capture on (SceneRecogniser::WarmUp). Off where a controller makes one scan only
   // (the tabletop evaluation: a controller per scene would build them all each time).
   bool warm_up = true;
+  // Tabletop: a scene recogniser of the same database to use (and keep the per-model
+  // caches of) instead of the controller's own, which dies with it; must outlive the
+  // controller. The tabletop evaluation shares one across its scenes, so that a scene's
+  // times are not those of building the caches of every model it meets (the answers are
+  // the same either way).
+  const SceneRecogniser* shared_scene_recogniser = nullptr;
   SceneRecognitionOptions scene;  // its `recognition` is replaced by `recognition` above
   // Checked between scans; when it becomes true the run ends after the current scan (a
   // capture under way is cancelled by the source's session, which watches the same flag).
@@ -137,6 +143,11 @@ class ScanAndRecogniseController {
   // `decoded`: the map decoded during the capture (decode_ms its time), else nullptr.
   void ScanTable(const FrameSet& frames, CorrespondenceMap* decoded, double decode_ms,
                  ScanReport* report);
+  // options_.shared_scene_recogniser when set, else the controller's own.
+  const SceneRecogniser& SceneRecogniserInUse() const {
+    return options_.shared_scene_recogniser != nullptr ? *options_.shared_scene_recogniser
+                                                       : scene_recogniser_;
+  }
   ScanAndRecogniseOptions options_;
   ScanSource* source_;
   const Database& database_;
