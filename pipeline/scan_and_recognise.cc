@@ -148,6 +148,9 @@ ScanAndRecogniseController::ScanAndRecogniseController(const ScanAndRecogniseOpt
       scene_recogniser_(database) {
   options_.Check();
   SOPE_CHECK(source_ != nullptr, "scan and recognise: no scan source");
+  SOPE_CHECK(options_.shared_scene_recogniser == nullptr ||
+                 &options_.shared_scene_recogniser->database() == &database,
+             "scan and recognise: the shared scene recogniser is of another database");
   live_decode_ = std::make_unique<LiveDecode>();
   // Tabletop scans finish the decode themselves: code consistency only near what is not
   // the table (ScanTableFrameSet).

@@ -305,6 +305,7 @@ class SceneRecogniser {
   // Keeps a reference: `database` must outlive it.
   explicit SceneRecogniser(const Database& database);
   ~SceneRecogniser();
+  const Database& database() const { return database_; }
 
   // Throws sope::Error on invalid options and on the clouds SegmentTable refuses (a
   // non-finite point, fewer than 3 points); no table or nothing on it is an empty result.

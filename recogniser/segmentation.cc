@@ -90,11 +90,13 @@ std::vector<std::vector<int>> GridEuclideanClusters(const std::vector<Eigen::Vec
   }
   std::sort(keyed.begin(), keyed.end());
   std::unordered_map<uint64_t, std::pair<int, int>> cells;  // key → range in `keyed`
+  std::vector<std::pair<int, int>> ranges;                    // the same, in key order
   cells.reserve(n);
   for (size_t k = 0; k < n;) {
     size_t end = k;
     while (end < n && keyed[end].first == keyed[k].first) ++end;
-    cells.emplace(keyed[k].first, std::make_pair(static_cast<int>(k), static_cast<int>(end)));
+    ranges.emplace_back(static_cast<int>(k), static_cast<int>(end));
+    cells.emplace(keyed[k].first, ranges.back());
     k = end;
   }
   std::vector<int> parent(n);
@@ -116,11 +118,7 @@ std::vector<std::vector<int>> GridEuclideanClusters(const std::vector<Eigen::Vec
   // cells that come after it (every pair of neighbour cells once) — a hash look-up per
   // cell and neighbour rather than per point and neighbour. The components do not depend
   // on the order in which the pairs are joined.
-  for (size_t k = 0; k < n;) {
-    size_t run_end = k;
-    while (run_end < n && keyed[run_end].first == keyed[k].first) ++run_end;
-    const int begin = static_cast<int>(k), end = static_cast<int>(run_end);
-    k = run_end;
+  for (const auto& [begin, end] : ranges) {
     for (int p = begin; p < end; ++p) {
       for (int q = p + 1; q < end; ++q) join_close(keyed[p].second, keyed[q].second);
     }
