@@ -270,29 +270,79 @@ RecognitionResult RecogniseCluster(const SceneContext& ctx, const PointCloud& po
   return recognition;
 }
 
-// RecogniseCluster of each of `clouds`, in order: side by side on recognition.threads
-// threads when there are several (each recognition on one thread: a recognition's answer
-// is the same for any thread count), else on the calling thread with them. The wall time
+// job(context, k) for each k < count: side by side on recognition.threads threads when
+// there are several (each job on one thread, with a context whose recognition.threads is
+// 1: a job's answer is then the same for any thread count), else in order on the calling
+// thread with `ctx`. True when they ran side by side.
+bool SideBySide(const SceneContext& ctx, size_t count,
+                const std::function<void(const SceneContext&, size_t)>& job) {
+  const int threads = ctx.options.recognition.threads;
+  if (threads <= 1 || count <= 1) {
+    for (size_t k = 0; k < count; ++k) job(ctx, k);
+    return false;
+  }
+  SceneRecognitionOptions one_thread = ctx.options;
+  one_thread.recognition.threads = 1;
+  const SceneContext ctx_one_thread{ctx.scene_recogniser, ctx.recogniser, ctx.database,
+                                    ctx.cloud,            one_thread,     ctx.plane,
+                                    ctx.clusters,         ctx.scene,      ctx.max_diameter};
+  RunJobs(threads, count, [&](size_t k) { job(ctx_one_thread, k); });
+  return true;
+}
+
+// RecogniseCluster of each of `clouds`, in order, side by side (SideBySide). The wall time
 // goes to pool->recognise_ms.
 std::vector<RecognitionResult> RecogniseSideBySide(const SceneContext& ctx,
                                                    const std::vector<const PointCloud*>& clouds,
                                                    HypothesisPool* pool) {
   const Stopwatch watch;
   std::vector<RecognitionResult> results(clouds.size());
-  const int threads = ctx.options.recognition.threads;
-  if (threads > 1 && clouds.size() > 1) {
-    SceneRecognitionOptions one_thread = ctx.options;
-    one_thread.recognition.threads = 1;
-    const SceneContext ctx_one_thread{ctx.scene_recogniser, ctx.recogniser, ctx.database,
-                                      ctx.cloud,            one_thread,     ctx.plane,
-                                      ctx.clusters,         ctx.scene,      ctx.max_diameter};
-    RunJobs(threads, clouds.size(),
-            [&](size_t k) { results[k] = RecogniseCluster(ctx_one_thread, *clouds[k]); });
-  } else {
-    for (size_t k = 0; k < clouds.size(); ++k) results[k] = RecogniseCluster(ctx, *clouds[k]);
-  }
+  SideBySide(ctx, clouds.size(), [&](const SceneContext& c, size_t k) {
+    results[k] = RecogniseCluster(c, *clouds[k]);
+  });
   pool->recognise_ms += watch.WallMs();
   return results;
+}
+
+// The looks of `count` jobs (job(context, k, pool of its own)), side by side (SideBySide);
+// then each job's hypotheses, with the scaled surfaces they point to, join `pool` in job
+// order, and so does a cluster's first recognition a job set where `pool` has none — the
+// same as the jobs one after another into `pool` (a job reads no other job's hypotheses,
+// nor those first recognitions). Returns how many hypotheses each job added.
+std::vector<size_t> LooksSideBySide(
+    const SceneContext& ctx, size_t count, HypothesisPool* pool,
+    const std::function<void(const SceneContext&, size_t, HypothesisPool*)>& job) {
+  std::vector<HypothesisPool> looks(count);
+  for (HypothesisPool& l : looks) l.cluster_results.resize(pool->cluster_results.size());
+  const Stopwatch watch;
+  const bool parallel =
+      SideBySide(ctx, count, [&](const SceneContext& c, size_t k) { job(c, k, &looks[k]); });
+  if (parallel) pool->recognise_ms += watch.WallMs();
+  std::vector<size_t> added(count, 0);
+  for (size_t k = 0; k < count; ++k) {
+    HypothesisPool& l = looks[k];
+    if (!parallel) pool->recognise_ms += l.recognise_ms;
+    for (size_t c = 0; c < l.cluster_results.size(); ++c) {
+      if (pool->cluster_results[c].empty() && !l.cluster_results[c].empty()) {
+        pool->cluster_results[c] = std::move(l.cluster_results[c]);
+      }
+    }
+    // The scaled surfaces move to the pool's deque (where they stay put), and the
+    // hypotheses that point to them follow.
+    std::map<const PointCloud*, const PointCloud*> moved;
+    for (PointCloud& surface : l.scaled_surfaces) {
+      const PointCloud* from = &surface;
+      pool->scaled_surfaces.push_back(std::move(surface));
+      moved[from] = &pool->scaled_surfaces.back();
+    }
+    added[k] = l.hypotheses.size();
+    for (Hypothesis& h : l.hypotheses) {
+      const auto to = moved.find(h.surface);
+      if (to != moved.end()) h.surface = to->second;
+      pool->hypotheses.push_back(std::move(h));
+    }
+  }
+  return added;
 }
 
 // The database models of class `class_index`, by index (an instance database has one per
@@ -1331,31 +1381,30 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   std::vector<const PointCloud*> clouds;
   for (const Join& join : joins) clouds.push_back(&join.joined);
   const std::vector<RecognitionResult> recognised = RecogniseSideBySide(ctx, clouds, pool);
-  bool added = false;
+  const std::vector<size_t> added = LooksSideBySide(
+      ctx, joins.size(), pool, [&](const SceneContext& c, size_t k, HypothesisPool* looks) {
+        const PointCloud& joined = joins[k].joined;
+        const int owner = joins[k].owner;
+        const RecognitionResult& recognition = recognised[k];
+        LazyPoseQuery joined_query(c, joined);
+        AddClusterHypotheses(c, owner, recognition, looks, joined_query.Getter());
+        // A handle the shadow cut off the body: turned about the body's axis and refined on
+        // both parts, the model can put it where it was seen.
+        if (c.options.roll_steps > 1) {
+          AddRolledOf(c, recognition, owner, joined_query.Getter(), looks);
+        }
+        // An unseen instance two unexplained clusters make up: the size looks of the class
+        // ranked first, sized to the joined points (SceneRecognitionOptions::join_size_looks).
+        if (c.options.join_size_looks && joins[k].partner_is_cluster) {
+          AddSizeLooksOn(c, recognition, owner, joined, joined_query.Getter(), looks);
+        }
+      });
   for (size_t k = 0; k < joins.size(); ++k) {
-    const PointCloud& joined = joins[k].joined;
-    const int owner = joins[k].owner;
-    const int cluster_a = joins[k].cluster_a, cluster_b = joins[k].cluster_b;
-    const size_t before = pool->hypotheses.size();
-    const RecognitionResult& recognition = recognised[k];
-    LazyPoseQuery joined_query(ctx, joined);
-    AddClusterHypotheses(ctx, owner, recognition, pool, joined_query.Getter());
-    // A handle the shadow cut off the body: turned about the body's axis and refined on
-    // both parts, the model can put it where it was seen.
-    if (options.roll_steps > 1) {
-      AddRolledOf(ctx, recognition, owner, joined_query.Getter(), pool);
-    }
-    // An unseen instance two unexplained clusters make up: the size looks of the class
-    // ranked first, sized to the joined points (SceneRecognitionOptions::join_size_looks).
-    if (options.join_size_looks && joins[k].partner_is_cluster) {
-      AddSizeLooksOn(ctx, recognition, owner, joined, joined_query.Getter(), pool);
-    }
     spdlog::debug("{} {} and cluster {} joined ({} points): {} hypotheses",
-                  joins[k].partner_is_cluster ? "cluster" : "the object of cluster", cluster_b,
-                  cluster_a, joined.size(), pool->hypotheses.size() - before);
-    added |= pool->hypotheses.size() > before;
+                  joins[k].partner_is_cluster ? "cluster" : "the object of cluster",
+                  joins[k].cluster_b, joins[k].cluster_a, joins[k].joined.size(), added[k]);
   }
-  return added;
+  return std::any_of(added.begin(), added.end(), [](size_t n) { return n > 0; });
 }
 
 // Parts of clusters (convex segments, unexplained remainders), each recognised alone: the
@@ -1367,18 +1416,15 @@ std::vector<size_t> AddPartHypotheses(const SceneContext& ctx,
   std::vector<const PointCloud*> clouds;
   for (const auto& [cluster, part] : parts) clouds.push_back(&part);
   const std::vector<RecognitionResult> recognised = RecogniseSideBySide(ctx, clouds, pool);
-  std::vector<size_t> added(parts.size(), 0);
-  for (size_t k = 0; k < parts.size(); ++k) {
-    const auto& [cluster, part] = parts[k];
-    const size_t before = pool->hypotheses.size();
-    LazyPoseQuery part_query(ctx, part);
-    AddClusterHypotheses(ctx, cluster, recognised[k], pool, part_query.Getter());
-    if (ctx.options.part_size_looks) {
-      AddSizeLooksOn(ctx, recognised[k], cluster, part, part_query.Getter(), pool);
-    }
-    added[k] = pool->hypotheses.size() - before;
-  }
-  return added;
+  return LooksSideBySide(
+      ctx, parts.size(), pool, [&](const SceneContext& c, size_t k, HypothesisPool* looks) {
+        const auto& [cluster, part] = parts[k];
+        LazyPoseQuery part_query(c, part);
+        AddClusterHypotheses(c, cluster, recognised[k], looks, part_query.Getter());
+        if (c.options.part_size_looks) {
+          AddSizeLooksOn(c, recognised[k], cluster, part, part_query.Getter(), looks);
+        }
+      });
 }
 
 // Clusters `to_split` (each once) split along their concave seams: each of the
@@ -1691,14 +1737,17 @@ bool AddScaledHypothesis(const SceneContext& ctx, const Hypothesis& h, size_t cl
 bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
   if (pool->size_looks_taken) return false;
   pool->size_looks_taken = true;
-  bool added = false;
-  for (size_t c = 0; c < ctx.clusters.size(); ++c) {
-    const int cluster = static_cast<int>(c);
-    added |= AddSizeLooksOn(ctx, pool->cluster_results[c], cluster, ctx.clusters[c].cloud,
-                            [&ctx, cluster, pool] { return ClusterPoseQuery(ctx, cluster, pool); },
-                            pool);
-  }
-  return added;
+  // Each cluster's looks read its points, its first recognition and its pose query (its
+  // own slot of the pool, built on first use): side by side.
+  const std::vector<size_t> added = LooksSideBySide(
+      ctx, ctx.clusters.size(), pool,
+      [pool](const SceneContext& c, size_t k, HypothesisPool* looks) {
+        const int cluster = static_cast<int>(k);
+        AddSizeLooksOn(c, pool->cluster_results[k], cluster, c.clusters[k].cloud,
+                       [&c, cluster, pool] { return ClusterPoseQuery(c, cluster, pool); },
+                       looks);
+      });
+  return std::any_of(added.begin(), added.end(), [](size_t n) { return n > 0; });
 }
 
 // Every cluster's first recognition gets its rolled hypotheses (AddRolledOf), once, for
