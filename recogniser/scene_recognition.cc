@@ -2270,11 +2270,15 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     std::vector<const PointCloud*> clouds;
     for (const ObjectCluster& c : clusters) clouds.push_back(&c.cloud);
     const std::vector<RecognitionResult> first_looks = RecogniseSideBySide(ctx, clouds, &pool);
-    for (size_t c = 0; c < clusters.size(); ++c) {
-      const int cluster = static_cast<int>(c);
-      AddClusterHypotheses(ctx, cluster, first_looks[c], &pool,
-                           [&] { return ClusterPoseQuery(ctx, cluster, &pool); });
-    }
+    // Each cluster's hypotheses (their pose queries in the pool's own slots) side by side.
+    HypothesisPool* shared = &pool;
+    LooksSideBySide(ctx, clusters.size(), shared,
+                    [&](const SceneContext& c, size_t k, HypothesisPool* looks) {
+                      const int cluster = static_cast<int>(k);
+                      AddClusterHypotheses(
+                          c, cluster, first_looks[k], looks,
+                          [&c, cluster, shared] { return ClusterPoseQuery(c, cluster, shared); });
+                    });
   }
   std::vector<HypothesisEvidence> evidence = VerifyPool(ctx, &pool);
   // Second looks, in rounds while they add hypotheses (each look at most once per cluster
