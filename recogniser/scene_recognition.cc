@@ -11,6 +11,7 @@
 #include <mutex>
 #include <optional>
 #include <set>
+#include <tuple>
 #include <unordered_map>
 
 #include <Eigen/Eigenvalues>
@@ -969,8 +970,10 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
           }
         }
       }
-      std::sort(near_pairs.begin(), near_pairs.end(),
-                [](const Segment& x, const Segment& y) { return x.d2 < y.d2; });
+      // Ties broken by sample order: the first is the nearest pair in the samples' order.
+      std::sort(near_pairs.begin(), near_pairs.end(), [](const Segment& x, const Segment& y) {
+        return std::tie(x.d2, x.p, x.q) < std::tie(y.d2, y.p, y.q);
+      });
       std::vector<uint8_t> used_a(sample[a].size(), 0), used_b(sample[b].size(), 0);
       int tried = 0, samples = 0, seen = 0;
       bool unseen = false;
