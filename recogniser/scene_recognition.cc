@@ -2274,13 +2274,12 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     for (const ObjectCluster& c : clusters) clouds.push_back(&c.cloud);
     const std::vector<RecognitionResult> first_looks = RecogniseSideBySide(ctx, clouds, &pool);
     // Each cluster's hypotheses (their pose queries in the pool's own slots) side by side.
-    HypothesisPool* shared = &pool;
-    LooksSideBySide(ctx, clusters.size(), shared,
+    LooksSideBySide(ctx, clusters.size(), &pool,
                     [&](const SceneContext& c, size_t k, HypothesisPool* looks) {
                       const int cluster = static_cast<int>(k);
                       AddClusterHypotheses(
                           c, cluster, first_looks[k], looks,
-                          [&c, cluster, shared] { return ClusterPoseQuery(c, cluster, shared); });
+                          [&c, cluster, &pool] { return ClusterPoseQuery(c, cluster, &pool); });
                     });
   }
   std::vector<HypothesisEvidence> evidence = VerifyPool(ctx, &pool);
@@ -2308,12 +2307,12 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     bool added = AddRemainderHypotheses(ctx, explained, left, has_accepted, &pool);
     const double t_remainder = look.WallMs();
     added |= AddTwinsOfUnexplained(ctx, evidence, unexplained, &pool);
-    const double t_twins_only = look.WallMs();
+    const double t_twins = look.WallMs();
     const bool first_size_look = !pool.size_looks_taken;
     added |= AddSizeHypotheses(ctx, &pool);
     const double t_sizes = look.WallMs();
     if (first_size_look) added |= AddRolledHypotheses(ctx, evidence, &pool);
-    const double t_twins = look.WallMs();
+    const double t_rolled = look.WallMs();
     added |= AddSplitHypotheses(ctx, to_split, &pool);
     const double t_split = look.WallMs();
     added |= AddJoinedHypotheses(ctx, evidence, unexplained, &pool);
@@ -2323,8 +2322,8 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     spdlog::debug("second looks, round {}: remainders {:.1f} ms, twins {:.1f} ms, sizes {:.1f} "
                   "ms, rolled {:.1f} ms, splits {:.1f} ms, joins {:.1f} ms, verification {:.1f} "
                   "ms; {} hypotheses",
-                  round, t_remainder, t_twins_only - t_remainder, t_sizes - t_twins_only,
-                  t_twins - t_sizes, t_split - t_twins, t_join - t_split, look.WallMs() - t_join,
+                  round, t_remainder, t_twins - t_remainder, t_sizes - t_twins,
+                  t_rolled - t_sizes, t_split - t_rolled, t_join - t_split, look.WallMs() - t_join,
                   pool.hypotheses.size());
   }
   result.hypotheses = static_cast<int>(pool.hypotheses.size());
