@@ -496,6 +496,37 @@ TEST(TableRevolution, AStandingWineGlassTheSearchTiltsIsFoundStoodUpright) {
   }
 }
 
+// Other classes' looks (SceneRecognitionOptions::other_class_remainder), on scene 7 of the
+// procedural tabletop evaluation with seed 901: an unseen mug (1258) lies on its side in
+// full view, its handle up. The database holds the 16 mugs and 16 glasses of the
+// default database: a glass fits its body better than the mugs the recogniser poses, and
+// the class evidence points to the glass; the handle is left unexplained. With the looks,
+// a sibling mug turned to put its handle where it was seen explains the handle too, and
+// the mug must be named within 3 cm; without them it is not. (With 4 mugs and 4 glasses
+// only, a mug names it either way.)
+TEST(TableOtherClasses, AMugTakenForAGlassIsFoundByTurningASiblingsHandle) {
+#if defined(__SANITIZE_ADDRESS__)
+  GTEST_SKIP() << "depends on the Release build's exact cloud of this scene";
+#endif
+  const testing::ScratchDir scratch;
+  const std::unique_ptr<Database> db = testing::ProceduralDatabase(
+      scratch, {{ObjectClass::kMug, {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15}},
+                {ObjectClass::kGlass, {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15}}});
+  const std::optional<ScannedTruthObject> mug = ScanEvaluationObject(901, 7, "mug", 1258);
+  ASSERT_TRUE(mug.has_value()) << "scene 7 of seed 901 is not the one described";
+
+  const SceneRecogniser recogniser(*db);
+  SceneRecognitionOptions options;
+  const double remainder = options.other_class_remainder;
+  for (const bool looks : {false, true}) {
+    options.other_class_remainder = looks ? remainder : 0.0;
+    const SceneRecognitionResult result = recogniser.Recognise(mug->cloud, options);
+    std::printf("other classes' looks %s:\n%s\n", looks ? "on" : "off",
+                SceneBriefReport(result).c_str());
+    EXPECT_EQ(NamedNear(result, *db, "mug", mug->centre), looks);
+  }
+}
+
 // Tabletop scans (ScanTableFrameSet): the code consistency fills only near what stands on
 // the table — on scene 0 of the procedural evaluation with seed 301, the points standing on
 // the table are those of the whole-image consistency within 0.5%, while most of its fills

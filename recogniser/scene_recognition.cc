@@ -212,6 +212,9 @@ struct HypothesisPool {
   // cluster and another cluster, or num_clusters + the accepted hypothesis it joined).
   std::vector<uint8_t> remainder_tried, twins_tried, split_tried;
   bool size_looks_taken = false;  // siblings and scaled models (every cluster, once)
+  bool other_classes_taken = false;  // AddOtherClassLooks (once)
+  // Per cluster, [begin, end) of the hypotheses its size looks added (AddSizeHypotheses).
+  std::vector<std::pair<size_t, size_t>> size_looks_of;
   // The surface samples of scaled hypotheses (Hypothesis::surface points into it).
   std::deque<PointCloud> scaled_surfaces;
   // Per cluster: its pose query (ClusterPoseQuery), built on first use.
@@ -356,6 +359,22 @@ std::vector<int> ModelsOfClass(const Database& database, int class_index) {
   return models;
 }
 
+// `recognition` with its best posed suggestion of class `class_index` first, as a
+// hypothesis of `cluster`; nullopt when it posed none of that class.
+std::optional<Hypothesis> ClassSource(const RecognitionResult& recognition, int cluster,
+                                      int class_index) {
+  const auto s = std::find_if(
+      recognition.suggestions.begin(), recognition.suggestions.end(),
+      [&](const Suggestion& x) { return x.posed && x.class_index == class_index; });
+  if (s == recognition.suggestions.end()) return std::nullopt;
+  Hypothesis source;
+  source.cluster = cluster;
+  source.recognition = recognition;
+  std::iter_swap(source.recognition.suggestions.begin(),
+                 source.recognition.suggestions.begin() + (s - recognition.suggestions.begin()));
+  return source;
+}
+
 // The best posed suggestion of the class `recognition` ranks first, when it ranks it so
 // with at least verification.min_class_probability, as a hypothesis of `cluster` (the
 // source of siblings and scaled models); *class_models receives that class's models.
@@ -367,17 +386,9 @@ std::optional<Hypothesis> FirstClassSource(const SceneContext& ctx,
     return std::nullopt;
   }
   const int first_class = recognition.classes.front().class_index;
-  for (size_t k = 0; k < recognition.suggestions.size(); ++k) {
-    const Suggestion& s = recognition.suggestions[k];
-    if (!s.posed || s.class_index != first_class) continue;
-    Hypothesis source;
-    source.cluster = cluster;
-    source.recognition = recognition;
-    std::swap(source.recognition.suggestions[0], source.recognition.suggestions[k]);
-    *class_models = ModelsOfClass(ctx.database, first_class);
-    return source;
-  }
-  return std::nullopt;
+  std::optional<Hypothesis> source = ClassSource(recognition, cluster, first_class);
+  if (source) *class_models = ModelsOfClass(ctx.database, first_class);
+  return source;
 }
 
 // Puts the hypothesis down on the table (when within max_snap); false when it floats above
@@ -1003,6 +1014,55 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
   return pairs;
 }
 
+// `source` (its first suggestion posed) turned about its model's axis of near symmetry
+// `axis` in roll_steps equal steps (the turns other than none), each ICP-refined on
+// `query`, scored on it and put down on the table: the turns that stay on it, in turn
+// order (refined side by side on recognition.threads threads).
+std::vector<Hypothesis> RolledTurns(const SceneContext& ctx, const Hypothesis& source,
+                                    const NearSymmetryAxis& axis, const PoseQuery& query) {
+  const SceneRecognitionOptions& options = ctx.options;
+  const bool on_table = options.snap_to_plane && ctx.plane.found;
+  const Suggestion& s = source.recognition.suggestions[0];
+  const Rigid3d canonical_from_cam =
+      Rigid3d(query.cam_from_canonical, Eigen::Vector3d::Zero()).Inverse();
+  const PointCloud& surface = ctx.scene_recogniser.ModelSurface(s.model, options.model_leaf);
+  std::vector<std::optional<Hypothesis>> turned(std::max(0, options.roll_steps - 1));
+  RunJobs(options.recognition.threads, turned.size(), [&](size_t j) {
+    const int k = static_cast<int>(j) + 1;
+    const Eigen::Matrix3d turn =
+        Eigen::AngleAxisd(2.0 * M_PI * k / options.roll_steps, axis.direction).toRotationMatrix();
+    const Rigid3d model_turn(turn, axis.point - turn * axis.point);
+    Hypothesis rolled = source;
+    rolled.rolled = true;
+    const Rigid3d canonical_from_model =
+        RefineOnCluster(ctx, query, surface, canonical_from_cam * s.cam_from_model * model_turn,
+                        &rolled)
+            .canonical_from_model;
+    ScoreOnCluster(ctx, query, canonical_from_model, &rolled);
+    if (on_table && !PutOnTable(ctx, &rolled)) return;
+    turned[j] = std::move(rolled);
+  });
+  std::vector<Hypothesis> out;
+  for (size_t j = 0; j < turned.size(); ++j) {
+    if (!turned[j]) continue;
+    spdlog::debug("cluster {}: {} turned {}° about its axis, score {:.3f}", source.cluster,
+                  s.model_name, 360 * static_cast<int>(j + 1) / options.roll_steps,
+                  turned[j]->recognition.suggestions[0].score);
+    out.push_back(std::move(*turned[j]));
+  }
+  return out;
+}
+
+// The axis about which the model of `h`'s first suggestion is turned (roll_steps > 1 and
+// at least roll_min_asymmetry of its surface moves), or null.
+const NearSymmetryAxis* RollAxis(const SceneContext& ctx, const Hypothesis& h) {
+  if (ctx.options.roll_steps <= 1) return nullptr;
+  const NearSymmetryAxis& axis = ctx.scene_recogniser.SymmetryAxis(
+      h.recognition.suggestions[0].model, ctx.options.model_leaf);
+  if (!axis.found || axis.asymmetric_fraction < ctx.options.roll_min_asymmetry) return nullptr;
+  return &axis;
+}
+
 // The best posed suggestion of each class `recognition` (of `cluster`'s points, or of them
 // joined with a neighbour's) gives at least roll_min_class_probability, turned about its
 // model's axis of near symmetry (SceneRecognitionOptions::roll_steps) — in the pose the
@@ -1013,53 +1073,21 @@ std::vector<std::pair<int, int>> UnseenGapLabels(const SceneContext& ctx,
 bool AddRolledOf(const SceneContext& ctx, const RecognitionResult& recognition, int cluster,
                  const std::function<const PoseQuery*()>& query_of, HypothesisPool* pool,
                  const std::set<int>& skip = {}) {
-  const SceneRecognitionOptions& options = ctx.options;
-  const bool on_table = options.snap_to_plane && ctx.plane.found;
   bool added = false;
   for (const ClassScore& class_score : recognition.classes) {
-    if (class_score.probability < options.roll_min_class_probability ||
+    if (class_score.probability < ctx.options.roll_min_class_probability ||
         skip.count(class_score.class_index)) {
       continue;
     }
-    const auto s = std::find_if(
-        recognition.suggestions.begin(), recognition.suggestions.end(),
-        [&](const Suggestion& x) { return x.posed && x.class_index == class_score.class_index; });
-    if (s == recognition.suggestions.end()) continue;
-    const NearSymmetryAxis& axis = ctx.scene_recogniser.SymmetryAxis(s->model, options.model_leaf);
-    if (!axis.found || axis.asymmetric_fraction < options.roll_min_asymmetry) continue;
+    const std::optional<Hypothesis> source =
+        ClassSource(recognition, cluster, class_score.class_index);
+    if (!source) continue;
+    const NearSymmetryAxis* axis = RollAxis(ctx, *source);
+    if (axis == nullptr) continue;
     const PoseQuery* query = query_of();
     if (query == nullptr) return added;
-    const Rigid3d canonical_from_cam =
-        Rigid3d(query->cam_from_canonical, Eigen::Vector3d::Zero()).Inverse();
-    const PointCloud& surface = ctx.scene_recogniser.ModelSurface(s->model, options.model_leaf);
-    Hypothesis source;
-    source.cluster = cluster;
-    source.recognition = recognition;
-    std::iter_swap(source.recognition.suggestions.begin(),
-                   source.recognition.suggestions.begin() + (s - recognition.suggestions.begin()));
-    // The turns are independent: refined on recognition.threads threads, added in order.
-    std::vector<std::optional<Hypothesis>> turned(options.roll_steps - 1);
-    RunJobs(options.recognition.threads, turned.size(), [&](size_t j) {
-      const int k = static_cast<int>(j) + 1;
-      const Eigen::Matrix3d turn =
-          Eigen::AngleAxisd(2.0 * M_PI * k / options.roll_steps, axis.direction).toRotationMatrix();
-      const Rigid3d model_turn(turn, axis.point - turn * axis.point);
-      Hypothesis rolled = source;
-      rolled.rolled = true;
-      const Rigid3d canonical_from_model =
-          RefineOnCluster(ctx, *query, surface,
-                          canonical_from_cam * s->cam_from_model * model_turn, &rolled)
-              .canonical_from_model;
-      ScoreOnCluster(ctx, *query, canonical_from_model, &rolled);
-      if (on_table && !PutOnTable(ctx, &rolled)) return;
-      turned[j] = std::move(rolled);
-    });
-    for (size_t j = 0; j < turned.size(); ++j) {
-      if (!turned[j]) continue;
-      spdlog::debug("cluster {}: {} turned {}° about its axis, score {:.3f}", cluster,
-                    s->model_name, 360 * static_cast<int>(j + 1) / options.roll_steps,
-                    turned[j]->recognition.suggestions[0].score);
-      pool->hypotheses.push_back(std::move(*turned[j]));
+    for (Hypothesis& turned : RolledTurns(ctx, *source, *axis, *query)) {
+      pool->hypotheses.push_back(std::move(turned));
       added = true;
     }
   }
@@ -1742,6 +1770,7 @@ bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
   pool->size_looks_taken = true;
   // Each cluster's looks read its points, its first recognition and its pose query (its
   // own slot of the pool, built on first use): side by side.
+  size_t begin = pool->hypotheses.size();
   const std::vector<size_t> added = LooksSideBySide(
       ctx, ctx.clusters.size(), pool,
       [pool](const SceneContext& c, size_t k, HypothesisPool* looks) {
@@ -1750,6 +1779,10 @@ bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
                        [&c, cluster, pool] { return ClusterPoseQuery(c, cluster, pool); },
                        looks);
       });
+  for (const size_t n : added) {
+    pool->size_looks_of.emplace_back(begin, begin + n);
+    begin += n;
+  }
   return std::any_of(added.begin(), added.end(), [](size_t n) { return n > 0; });
 }
 
@@ -1776,6 +1809,131 @@ bool AddRolledHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   }
   pool->recognise_ms += watch.WallMs();
   return added;
+}
+
+// A cluster whose accepted hypotheses leave at least other_class_remainder of its points
+// unexplained (a mug's handle beside a glass fitted to its body) gets, once, the looks of
+// each other class its first recognition posed with a verification within
+// other_class_margin of the first class's: that class's best posed suggestion and its
+// siblings, each turned about its axis of near symmetry (the handle put where it was
+// seen), and the best of those scaled to the cluster (an unseen mug of another size). The
+// class evidence of every hypothesis of such a cluster is then that of its best looks:
+// each class's verification raised to the best score of its hypotheses on the cluster,
+// the probabilities again the recogniser's softmax. True when that added hypotheses.
+bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvidence>& evidence,
+                        const std::vector<double>& left, HypothesisPool* pool) {
+  const SceneRecognitionOptions& options = ctx.options;
+  if (!(options.other_class_remainder > 0) || pool->other_classes_taken) return false;
+  pool->other_classes_taken = true;
+  const size_t num_clusters = ctx.clusters.size();
+  std::vector<std::set<int>> accepted_classes(num_clusters);
+  for (size_t h = 0; h < evidence.size(); ++h) {
+    if (!evidence[h].accepted) continue;
+    const Hypothesis& hypothesis = pool->hypotheses[h];
+    accepted_classes[hypothesis.cluster].insert(hypothesis.recognition.suggestions[0].class_index);
+  }
+  // The best score on its cluster of an accepted hypothesis of each cluster.
+  std::vector<double> accepted_score(num_clusters, 0.0);
+  for (size_t h = 0; h < evidence.size(); ++h) {
+    if (!evidence[h].accepted) continue;
+    const Hypothesis& hypothesis = pool->hypotheses[h];
+    double& score = accepted_score[hypothesis.cluster];
+    score = std::max(score, hypothesis.recognition.suggestions[0].score);
+  }
+  std::vector<bool> looked(num_clusters, false);
+  for (size_t k = 0; k < num_clusters; ++k) {
+    looked[k] = !accepted_classes[k].empty() && left[k] >= options.other_class_remainder &&
+                !pool->cluster_results[k].classes.empty();
+  }
+  // Each class's looks: its source and siblings with their turns, then the best scaled.
+  const auto class_looks = [&](const SceneContext& c, int cluster, const ClassScore& class_score,
+                               const PoseQuery& query, HypothesisPool* looks) {
+    const RecognitionResult& recognition = pool->cluster_results[cluster];
+    const std::optional<Hypothesis> source =
+        ClassSource(recognition, cluster, class_score.class_index);
+    if (!source) return;
+    const auto query_of = [&query] { return &query; };
+    const std::vector<int> class_models = ModelsOfClass(c.database, class_score.class_index);
+    const PointCloud& points = c.clusters[cluster].cloud;
+    std::vector<Hypothesis> bodies{*source};
+    HypothesisPool siblings;
+    AddSiblingsOf(c, *source, class_models, points, query_of, &siblings);
+    for (Hypothesis& sibling : siblings.hypotheses) bodies.push_back(std::move(sibling));
+    // The source's turns are in the pool already when its class is that probable.
+    const bool source_rolled = class_score.probability >= c.options.roll_min_class_probability;
+    const size_t first = looks->hypotheses.size();
+    for (size_t b = 0; b < bodies.size(); ++b) {
+      if (b > 0) looks->hypotheses.push_back(bodies[b]);
+      const NearSymmetryAxis* axis = RollAxis(c, bodies[b]);
+      if (axis == nullptr) continue;
+      for (Hypothesis& turned : RolledTurns(c, bodies[b], *axis, query)) {
+        if (b > 0 || !source_rolled) looks->hypotheses.push_back(std::move(turned));
+      }
+    }
+    const Hypothesis* best = &bodies.front();
+    for (size_t j = first; j < looks->hypotheses.size(); ++j) {
+      const Hypothesis& h = looks->hypotheses[j];
+      if (h.recognition.suggestions[0].score > best->recognition.suggestions[0].score) best = &h;
+    }
+    spdlog::debug("cluster {}: {:.0f}% unexplained, looks of class {}: best {} (score {:.3f}{})",
+                  cluster, 100 * left[cluster], class_score.class_name,
+                  best->recognition.suggestions[0].model_name,
+                  best->recognition.suggestions[0].score,
+                  best->recognition.suggestions[0].score > accepted_score[cluster]
+                      ? ""
+                      : fmt::format(" ≤ {:.3f} accepted: dropped", accepted_score[cluster]));
+    // Looks that fit the cluster no better than what was accepted there are not kept.
+    if (best->recognition.suggestions[0].score <= accepted_score[cluster]) {
+      looks->hypotheses.resize(first);
+      return;
+    }
+    const Hypothesis scale_source = *best;
+    AddScaledHypothesis(c, scale_source, class_models.size(), points, query_of, looks);
+  };
+  const size_t begin = pool->hypotheses.size();
+  const std::vector<size_t> added = LooksSideBySide(
+      ctx, num_clusters, pool, [&](const SceneContext& c, size_t k, HypothesisPool* looks) {
+        if (!looked[k]) return;
+        const int cluster = static_cast<int>(k);
+        const std::vector<ClassScore>& classes = pool->cluster_results[k].classes;
+        const double first = classes.front().verification;
+        const PoseQuery* query = nullptr;
+        for (const ClassScore& class_score : classes) {
+          if (accepted_classes[k].count(class_score.class_index) ||
+              class_score.verification < first - options.other_class_margin) {
+            continue;
+          }
+          if (query == nullptr) query = ClusterPoseQuery(c, cluster, pool);
+          if (query == nullptr) return;
+          class_looks(c, cluster, class_score, *query, looks);
+        }
+      });
+  // The class evidence of the clusters looked at, from their best looks on the whole
+  // cluster: these and its size looks (scored on its pose query as the recogniser's are;
+  // the hypotheses of its parts are scored on theirs).
+  for (size_t k = 0, look = begin; k < num_clusters; look += added[k], ++k) {
+    if (!looked[k] || added[k] == 0) continue;
+    std::vector<ClassScore> classes = pool->cluster_results[k].classes;
+    const auto raise = [&](size_t first, size_t end) {
+      for (size_t j = first; j < end; ++j) {
+        const Suggestion& s = pool->hypotheses[j].recognition.suggestions[0];
+        for (ClassScore& class_score : classes) {
+          if (s.class_index == class_score.class_index) {
+            class_score.verification = std::max(class_score.verification, s.score);
+          }
+        }
+      }
+    };
+    raise(look, look + added[k]);
+    if (k < pool->size_looks_of.size()) {
+      raise(pool->size_looks_of[k].first, pool->size_looks_of[k].second);
+    }
+    ClassProbabilities(options.recognition.assembly, &classes);
+    for (Hypothesis& h : pool->hypotheses) {
+      if (h.cluster == static_cast<int>(k)) h.recognition.classes = classes;
+    }
+  }
+  return std::any_of(added.begin(), added.end(), [](size_t n) { return n > 0; });
 }
 
 // Verifies every hypothesis of the pool against the scene (VerifyHypotheses), each with its
@@ -2131,6 +2289,12 @@ void SceneRecognitionOptions::Check() const {
              stability_weight);
   SOPE_CHECK(class_weight >= 0 && class_weight <= 1,
              "scene recognition: class weight must be in [0, 1], got {}", class_weight);
+  SOPE_CHECK(other_class_remainder >= 0 && other_class_remainder <= 1,
+             "scene recognition: other class remainder must be in [0, 1], got {}",
+             other_class_remainder);
+  SOPE_CHECK(other_class_margin >= 0 && other_class_margin <= 1,
+             "scene recognition: other class margin must be in [0, 1], got {}",
+             other_class_margin);
   SOPE_CHECK(scene_leaf > 0 && model_leaf > 0,
              "scene recognition: leaves must be > 0 m, got {} and {}", scene_leaf, model_leaf);
 }
@@ -2312,6 +2476,7 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     added |= AddSizeHypotheses(ctx, &pool);
     const double t_sizes = look.WallMs();
     if (first_size_look) added |= AddRolledHypotheses(ctx, evidence, &pool);
+    added |= AddOtherClassLooks(ctx, evidence, left, &pool);
     const double t_rolled = look.WallMs();
     added |= AddSplitHypotheses(ctx, to_split, &pool);
     const double t_split = look.WallMs();

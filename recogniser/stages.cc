@@ -754,7 +754,13 @@ std::vector<ClassScore> ScoreClasses(const StageContext& context, const FineResu
   for (int c = 0; c < num_classes; ++c) {
     if (evidence[c]) out.push_back(scores[c]);
   }
-  if (out.empty()) return out;
+  ClassProbabilities(options, &out);
+  return out;
+}
+
+void ClassProbabilities(const AssemblyOptions& options, std::vector<ClassScore>* classes) {
+  std::vector<ClassScore>& out = *classes;
+  if (out.empty()) return;
   const double temperature = std::max(1e-6, options.class_temperature);
   std::vector<double> z(out.size());
   for (size_t i = 0; i < out.size(); ++i) {
@@ -767,7 +773,6 @@ std::vector<ClassScore> ScoreClasses(const StageContext& context, const FineResu
   std::stable_sort(out.begin(), out.end(), [](const ClassScore& a, const ClassScore& b) {
     return a.probability > b.probability;
   });
-  return out;
 }
 
 Assembly AssembleSuggestions(StageContext* context, const FineResult& fine,

@@ -241,6 +241,11 @@ std::vector<ClassScore> ScoreClasses(const StageContext& context, const FineResu
                                      const std::vector<PoseCandidate>& posed,
                                      const AssemblyOptions& options);
 
+// The classes' probabilities: the softmax over `classes` of (verification +
+// class_vote_weight × vote) / class_temperature; then sorted most probable first (ties in
+// their order).
+void ClassProbabilities(const AssemblyOptions& options, std::vector<ClassScore>* classes);
+
 struct Assembly {
   std::vector<Suggestion> suggestions;  // best first, at most top_k
   bool recognised = false;              // see RecognitionResult::recognised
