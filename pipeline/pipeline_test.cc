@@ -527,6 +527,69 @@ TEST(TableOtherClasses, AMugTakenForAGlassIsFoundByTurningASiblingsHandle) {
   }
 }
 
+// Joins with remainders (SceneRecognitionOptions::join_remainders), on scene 14 of the
+// tabletop evaluation of the classic meshes with seed 301 (`sope eval --table --db
+// classic.sopedb --seed 301`; ../shared/data/meshes/classic, skipped when absent): spot lies
+// on its back beside cheburashka. Its body touches cheburashka and is clustered with it; a
+// shadow cuts its legs off into a cluster of their own. Once cheburashka is found, the
+// body is the unexplained remainder of that cluster (43%): joined with the legs it must be
+// named spot within 3 cm; without those joins the legs are joined with the whole cluster
+// only, and nothing names spot.
+TEST(TableJoins, AnObjectTouchingAnotherIsJoinedWithItsPartByItsRemainder) {
+#if defined(__SANITIZE_ADDRESS__)
+  GTEST_SKIP() << "depends on the Release build's exact cloud of this scene";
+#endif
+  const std::optional<std::string> data = testing::SharedDataDir();
+  if (!data) GTEST_SKIP() << "../shared/data not found";
+  const std::string classic = JoinPath(*data, "meshes/classic");
+  if (!std::filesystem::is_directory(classic)) GTEST_SKIP() << classic << " not found";
+  const testing::ScratchDir scratch;
+  const std::string models = scratch.File("models");
+  std::filesystem::create_directories(models);
+  for (const char* name : {"cheburashka", "spot", "teapot", "cow", "homer"}) {
+    std::filesystem::copy_file(JoinPath(classic, std::string(name) + ".obj"),
+                               JoinPath(models, std::string(name) + ".obj"));
+  }
+  DatabaseOptions db_options = DatabaseOptions::Preset("sope");
+  db_options.views_per_model = 80;
+  WriteDatabase(scratch.File("classic.sopedb"), BuildDatabase(models, db_options));
+  const std::unique_ptr<Database> db = Database::Open(scratch.File("classic.sopedb"));
+
+  // The scene as the evaluation draws it: its objects in its order, seed 301 + 14.
+  VirtualTableSourceOptions source_options;
+  source_options.calibration = DefaultRigCalibration();
+  source_options.patterns.projector_width = source_options.calibration.projector.width;
+  source_options.patterns.projector_height = source_options.calibration.projector.height;
+  source_options.table.clutter = 1;
+  source_options.seed = 301 + 14;
+  for (const char* name : {"cheburashka", "spot", "teapot"}) {
+    TableObjectSpec spec;
+    spec.spec = JoinPath(models, std::string(name) + ".obj");
+    spec.size = kSizeAsDatabase;
+    spec.mesh_unit = db->options().size.mesh_unit;
+    source_options.table.objects.push_back(spec);
+  }
+  VirtualTableSource source(source_options);
+  const SourceScan scan = source.Next(0);
+  ASSERT_TRUE(scan.truth.has_value());
+  std::optional<Eigen::Vector3d> centre;
+  for (const ScanObjectTruth& o : scan.truth->objects) {
+    if (o.class_name == "spot") centre = o.cam_from_model * MakePoseTruthModel(o.mesh).center;
+  }
+  ASSERT_TRUE(centre.has_value());
+  const PointCloud cloud = ScanFrameSet(scan.frames, scan.calibration).triangulation.cloud;
+
+  const SceneRecogniser recogniser(*db);
+  SceneRecognitionOptions options;
+  for (const bool remainders : {false, true}) {
+    options.join_remainders = remainders;
+    const SceneRecognitionResult result = recogniser.Recognise(cloud, options);
+    std::printf("joins with remainders %s:\n%s\n", remainders ? "on" : "off",
+                SceneBriefReport(result).c_str());
+    EXPECT_EQ(NamedNear(result, *db, "spot", *centre), remainders);
+  }
+}
+
 // Tabletop scans (ScanTableFrameSet): the code consistency fills only near what stands on
 // the table — on scene 0 of the procedural evaluation with seed 301, the points standing on
 // the table are those of the whole-image consistency within 0.5%, while most of its fills

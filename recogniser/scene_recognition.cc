@@ -1345,17 +1345,22 @@ bool AddSizeLooksOn(const SceneContext& ctx, const RecognitionResult& recognitio
 }
 
 // Each cluster nothing explains, recognised joined with what lies within join_distance of
-// it: another such cluster, or the points of an accepted hypothesis (an object whose part
-// the shadow cut off — its pose, found without that part, may be wrong). The hypotheses go
-// to the larger cluster. True when that added hypotheses.
+// it: another such cluster, the points of an accepted hypothesis (an object whose part the
+// shadow cut off — its pose, found without that part, may be wrong), or the unexplained
+// remainder (at least remainder_fraction, `left`) of a cluster partly explained (an object
+// touching another, whose other part the shadow cut off). The hypotheses go to the larger
+// cluster. True when that added hypotheses.
 bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEvidence>& evidence,
-                         const std::vector<bool>& unexplained, HypothesisPool* pool) {
+                         const std::vector<bool>& unexplained, const std::vector<double>& left,
+                         HypothesisPool* pool) {
   const SceneRecognitionOptions& options = ctx.options;
   const ThinnedScene& scene = ctx.scene;
   const int num_clusters = static_cast<int>(ctx.clusters.size());
   if (options.join_distance <= 0 || num_clusters < 2) return false;
   // Labels: 0 … num_clusters − 1 the points of clusters nothing explains; num_clusters + k
-  // the points the k-th accepted hypothesis explains (first come, first owned).
+  // the points the k-th accepted hypothesis explains (first come, first owned); then
+  // num_clusters + accepted + r the unexplained points of the r-th partly explained
+  // cluster with a remainder.
   std::vector<int> accepted;
   for (size_t h = 0; h < evidence.size(); ++h) {
     if (evidence[h].accepted) accepted.push_back(static_cast<int>(h));
@@ -1366,19 +1371,35 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
       if (label[j] < 0) label[j] = num_clusters + static_cast<int>(k);
     }
   }
-  for (size_t j = 0; j < scene.points.size(); ++j) {
-    if (unexplained[scene.cluster_of[j]]) label[j] = scene.cluster_of[j];
+  const int first_remainder = num_clusters + static_cast<int>(accepted.size());
+  std::vector<int> remainder_label(num_clusters, -1), remainder_cluster;
+  for (int c = 0; c < num_clusters; ++c) {
+    if (!options.join_remainders || unexplained[c] || options.remainder_fraction <= 0 ||
+        left[c] < options.remainder_fraction) {
+      continue;
+    }
+    remainder_label[c] = first_remainder + static_cast<int>(remainder_cluster.size());
+    remainder_cluster.push_back(c);
   }
-  const int num_labels = num_clusters + static_cast<int>(accepted.size());
-  // The raw points of a label: its cluster's, or those whose thinned point the object owns.
+  for (size_t j = 0; j < scene.points.size(); ++j) {
+    const int c = scene.cluster_of[j];
+    if (unexplained[c]) {
+      label[j] = c;
+    } else if (label[j] < 0 && remainder_label[c] >= 0) {
+      label[j] = remainder_label[c];
+    }
+  }
+  const int num_labels = first_remainder + static_cast<int>(remainder_cluster.size());
+  // The raw points of a label: its cluster's, or those whose thinned point the object owns
+  // or its remainder holds.
   auto points_of = [&](int l, PointCloud* out) -> int {
     if (l < num_clusters) {
       const PointCloud& c = ctx.clusters[l].cloud;
       out->points.insert(out->points.end(), c.points.begin(), c.points.end());
       return l;
     }
-    const int h = accepted[l - num_clusters];
-    const int c = pool->hypotheses[h].cluster;
+    const int c = l < first_remainder ? pool->hypotheses[accepted[l - num_clusters]].cluster
+                                      : remainder_cluster[l - first_remainder];
     for (const int i : ctx.clusters[c].indices) {
       if (label[scene.thinned_of_input[i]] == l) out->points.push_back(ctx.cloud.points[i]);
     }
@@ -1399,10 +1420,14 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   std::vector<Join> joins;
   for (const auto& [a, b] : pairs) {
     if (a >= num_clusters) continue;  // two objects: nothing unexplained to join
-    const int partner = b < num_clusters ? b : num_clusters + accepted[b - num_clusters];
+    // Partners: a cluster; num_clusters + an accepted hypothesis's index; a remainder's
+    // cluster c as −1 − c.
+    const int partner = b < num_clusters     ? b
+                        : b < first_remainder ? num_clusters + accepted[b - num_clusters]
+                                              : -1 - remainder_cluster[b - first_remainder];
     if (!pool->joined.emplace(a, partner).second) continue;  // joined in an earlier round
     Join join;
-    join.partner_is_cluster = b < num_clusters;
+    join.partner_is_cluster = b < num_clusters || b >= first_remainder;
     join.cluster_a = points_of(a, &join.joined);
     const size_t size_a = join.joined.size();
     join.cluster_b = points_of(b, &join.joined);
@@ -2480,7 +2505,7 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     const double t_rolled = look.WallMs();
     added |= AddSplitHypotheses(ctx, to_split, &pool);
     const double t_split = look.WallMs();
-    added |= AddJoinedHypotheses(ctx, evidence, unexplained, &pool);
+    added |= AddJoinedHypotheses(ctx, evidence, unexplained, left, &pool);
     const double t_join = look.WallMs();
     if (!added) break;
     evidence = VerifyPool(ctx, &pool);

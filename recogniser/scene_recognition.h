@@ -183,6 +183,11 @@ struct SceneRecognitionOptions {
   // comes within join_distance of it (metres; 0: never): one object cut in two by a
   // shadow (a mug's handle apart from its body) or by another object in front of it.
   double join_distance = 0.025;
+  // Also join with each such cluster the unexplained remainder (at least
+  // remainder_fraction) of a cluster partly explained: an object touching another (clustered
+  // with it) whose other part a shadow cut off (classic tables, seed 301, scene 14: spot's
+  // body touching cheburashka, its legs apart).
+  bool join_remainders = true;
   // Farther apart than join_distance but within join_gap (metres; ≤ join_distance: never),
   // the two are joined too when the camera did not see through the gap between them (at
   // most join_max_seen of the segment between their nearest points has a scene point
