@@ -1867,7 +1867,10 @@ bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvi
   }
   std::vector<bool> looked(num_clusters, false);
   for (size_t k = 0; k < num_clusters; ++k) {
+    // An accepted score of 1 − other_class_remainder or more explains its query (the
+    // points it was recognised from) all but that much: what is left lies beside them.
     looked[k] = !accepted_classes[k].empty() && left[k] >= options.other_class_remainder &&
+                accepted_score[k] < 1.0 - options.other_class_remainder &&
                 !pool->cluster_results[k].classes.empty();
   }
   // Each class's looks: its source and siblings with their turns, then the best scaled.
@@ -1884,18 +1887,34 @@ bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvi
     HypothesisPool siblings;
     AddSiblingsOf(c, *source, class_models, points, query_of, &siblings);
     for (Hypothesis& sibling : siblings.hypotheses) bodies.push_back(std::move(sibling));
-    // The source's turns are in the pool already when its class is that probable.
+    // The source's turns are in the pool already when its class is that probable
+    // (AddRolledHypotheses); a body scoring other_class_roll_within or more below what was
+    // accepted is not turned (its turns did not come near it).
     const bool source_rolled = class_score.probability >= c.options.roll_min_class_probability;
+    const double roll_from = accepted_score[cluster] - c.options.other_class_roll_within;
+    const Suggestion& s = source->recognition.suggestions[0];
+    const Hypothesis* best = &bodies.front();
+    if (source_rolled) {
+      for (const Hypothesis& h : pool->hypotheses) {
+        const Suggestion& t = h.recognition.suggestions[0];
+        if (h.cluster == cluster && h.rolled && t.model == s.model &&
+            t.score > best->recognition.suggestions[0].score) {
+          best = &h;
+        }
+      }
+    }
     const size_t first = looks->hypotheses.size();
     for (size_t b = 0; b < bodies.size(); ++b) {
       if (b > 0) looks->hypotheses.push_back(bodies[b]);
+      if ((b == 0 && source_rolled) || bodies[b].recognition.suggestions[0].score < roll_from) {
+        continue;
+      }
       const NearSymmetryAxis* axis = RollAxis(c, bodies[b]);
       if (axis == nullptr) continue;
       for (Hypothesis& turned : RolledTurns(c, bodies[b], *axis, query)) {
-        if (b > 0 || !source_rolled) looks->hypotheses.push_back(std::move(turned));
+        looks->hypotheses.push_back(std::move(turned));
       }
     }
-    const Hypothesis* best = &bodies.front();
     for (size_t j = first; j < looks->hypotheses.size(); ++j) {
       const Hypothesis& h = looks->hypotheses[j];
       if (h.recognition.suggestions[0].score > best->recognition.suggestions[0].score) best = &h;
@@ -2320,6 +2339,9 @@ void SceneRecognitionOptions::Check() const {
   SOPE_CHECK(other_class_margin >= 0 && other_class_margin <= 1,
              "scene recognition: other class margin must be in [0, 1], got {}",
              other_class_margin);
+  SOPE_CHECK(other_class_roll_within >= 0 && other_class_roll_within <= 1,
+             "scene recognition: other class roll within must be in [0, 1], got {}",
+             other_class_roll_within);
   SOPE_CHECK(scene_leaf > 0 && model_leaf > 0,
              "scene recognition: leaves must be > 0 m, got {} and {}", scene_leaf, model_leaf);
 }
