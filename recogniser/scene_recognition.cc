@@ -1851,19 +1851,15 @@ bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvi
   if (!(options.other_class_remainder > 0) || pool->other_classes_taken) return false;
   pool->other_classes_taken = true;
   const size_t num_clusters = ctx.clusters.size();
+  // Per cluster the classes accepted and the best score on it of a hypothesis accepted.
   std::vector<std::set<int>> accepted_classes(num_clusters);
-  for (size_t h = 0; h < evidence.size(); ++h) {
-    if (!evidence[h].accepted) continue;
-    const Hypothesis& hypothesis = pool->hypotheses[h];
-    accepted_classes[hypothesis.cluster].insert(hypothesis.recognition.suggestions[0].class_index);
-  }
-  // The best score on its cluster of an accepted hypothesis of each cluster.
   std::vector<double> accepted_score(num_clusters, 0.0);
   for (size_t h = 0; h < evidence.size(); ++h) {
     if (!evidence[h].accepted) continue;
     const Hypothesis& hypothesis = pool->hypotheses[h];
-    double& score = accepted_score[hypothesis.cluster];
-    score = std::max(score, hypothesis.recognition.suggestions[0].score);
+    const Suggestion& s = hypothesis.recognition.suggestions[0];
+    accepted_classes[hypothesis.cluster].insert(s.class_index);
+    accepted_score[hypothesis.cluster] = std::max(accepted_score[hypothesis.cluster], s.score);
   }
   std::vector<bool> looked(num_clusters, false);
   for (size_t k = 0; k < num_clusters; ++k) {
@@ -1887,6 +1883,7 @@ bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvi
     HypothesisPool siblings;
     AddSiblingsOf(c, *source, class_models, points, query_of, &siblings);
     for (Hypothesis& sibling : siblings.hypotheses) bodies.push_back(std::move(sibling));
+    looks->recognise_ms += siblings.recognise_ms;
     // The source's turns are in the pool already when its class is that probable
     // (AddRolledHypotheses); a body scoring other_class_roll_within or more below what was
     // accepted is not turned (its turns did not come near it).
