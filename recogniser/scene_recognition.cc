@@ -1814,16 +1814,32 @@ bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
 // Every cluster's first recognition gets its rolled hypotheses (AddRolledOf), once, for
 // the classes none of its hypotheses was accepted as in `evidence` (a mug already found
 // needs no other turn to be a mug). True when that added hypotheses.
+// What each cluster's accepted hypotheses are: their classes, and the best score on the
+// cluster among them (0: none accepted).
+struct AcceptedOnClusters {
+  std::vector<std::set<int>> classes;
+  std::vector<double> best_score;
+};
+AcceptedOnClusters AcceptedOn(size_t num_clusters, const std::vector<HypothesisEvidence>& evidence,
+                              const HypothesisPool& pool) {
+  AcceptedOnClusters out{std::vector<std::set<int>>(num_clusters),
+                         std::vector<double>(num_clusters, 0.0)};
+  for (size_t h = 0; h < evidence.size(); ++h) {
+    if (!evidence[h].accepted) continue;
+    const Hypothesis& hypothesis = pool.hypotheses[h];
+    const Suggestion& s = hypothesis.recognition.suggestions[0];
+    out.classes[hypothesis.cluster].insert(s.class_index);
+    out.best_score[hypothesis.cluster] = std::max(out.best_score[hypothesis.cluster], s.score);
+  }
+  return out;
+}
+
 bool AddRolledHypotheses(const SceneContext& ctx, const std::vector<HypothesisEvidence>& evidence,
                          HypothesisPool* pool) {
   if (ctx.options.roll_steps <= 1) return false;
   const Stopwatch watch;
-  std::vector<std::set<int>> accepted_classes(ctx.clusters.size());
-  for (size_t h = 0; h < evidence.size(); ++h) {
-    if (!evidence[h].accepted) continue;
-    const Hypothesis& hypothesis = pool->hypotheses[h];
-    accepted_classes[hypothesis.cluster].insert(hypothesis.recognition.suggestions[0].class_index);
-  }
+  const std::vector<std::set<int>> accepted_classes =
+      AcceptedOn(ctx.clusters.size(), evidence, *pool).classes;
   bool added = false;
   for (size_t c = 0; c < ctx.clusters.size(); ++c) {
     const int cluster = static_cast<int>(c);
@@ -1851,16 +1867,9 @@ bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvi
   if (!(options.other_class_remainder > 0) || pool->other_classes_taken) return false;
   pool->other_classes_taken = true;
   const size_t num_clusters = ctx.clusters.size();
-  // Per cluster the classes accepted and the best score on it of a hypothesis accepted.
-  std::vector<std::set<int>> accepted_classes(num_clusters);
-  std::vector<double> accepted_score(num_clusters, 0.0);
-  for (size_t h = 0; h < evidence.size(); ++h) {
-    if (!evidence[h].accepted) continue;
-    const Hypothesis& hypothesis = pool->hypotheses[h];
-    const Suggestion& s = hypothesis.recognition.suggestions[0];
-    accepted_classes[hypothesis.cluster].insert(s.class_index);
-    accepted_score[hypothesis.cluster] = std::max(accepted_score[hypothesis.cluster], s.score);
-  }
+  const AcceptedOnClusters accepted = AcceptedOn(num_clusters, evidence, *pool);
+  const std::vector<std::set<int>>& accepted_classes = accepted.classes;
+  const std::vector<double>& accepted_score = accepted.best_score;
   std::vector<bool> looked(num_clusters, false);
   for (size_t k = 0; k < num_clusters; ++k) {
     // An accepted score of 1 − other_class_remainder or more explains its query (the
@@ -1916,15 +1925,14 @@ bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvi
       const Hypothesis& h = looks->hypotheses[j];
       if (h.recognition.suggestions[0].score > best->recognition.suggestions[0].score) best = &h;
     }
+    const Suggestion& top = best->recognition.suggestions[0];
+    const bool better = top.score > accepted_score[cluster];
     spdlog::debug("cluster {}: {:.0f}% unexplained, looks of class {}: best {} (score {:.3f}{})",
-                  cluster, 100 * left[cluster], class_score.class_name,
-                  best->recognition.suggestions[0].model_name,
-                  best->recognition.suggestions[0].score,
-                  best->recognition.suggestions[0].score > accepted_score[cluster]
-                      ? ""
-                      : fmt::format(" ≤ {:.3f} accepted: dropped", accepted_score[cluster]));
+                  cluster, 100 * left[cluster], class_score.class_name, top.model_name, top.score,
+                  better ? ""
+                         : fmt::format(" ≤ {:.3f} accepted: dropped", accepted_score[cluster]));
     // Looks that fit the cluster no better than what was accepted there are not kept.
-    if (best->recognition.suggestions[0].score <= accepted_score[cluster]) {
+    if (!better) {
       looks->hypotheses.resize(first);
       return;
     }
