@@ -144,8 +144,10 @@ RecognitionSceneOptions SceneOptions(const Flags& flags, const Database& db) {
     RestrictScenesToObject(flags.object_spec, &scenes);
   } else {
     scenes.classes = ProceduralClassesIn(db);
-    SOPE_CHECK(!scenes.classes.empty(), "--virtual: the database {} holds no procedural class "
-               "(mug, bottle, ...) to put in front of the virtual rig", db.path());
+    // Tables of --mesh objects need no procedural class.
+    SOPE_CHECK(!scenes.classes.empty() || (flags.table.table && !flags.table.meshes.empty()),
+               "--virtual: the database {} holds no procedural class (mug, bottle, ...) to put "
+               "in front of the virtual rig (or give --table --mesh FILE ...)", db.path());
   }
   if (flags.object_spec.find(':') == std::string::npos) {
     const DefaultDatabaseOptions defaults;
@@ -176,9 +178,11 @@ std::unique_ptr<ScanSource> MakeSource(const Flags& flags, const Database& db,
     VirtualTableSourceOptions options;
     options.calibration = calibration;
     options.table = flags.table.ToOptions();
-    // --mesh objects scaled as the database scaled them (build-db --units).
+    // --mesh objects scaled and named as the database scaled (build-db --units) and named
+    // them (the truth's class is the database's).
     for (TableObjectSpec& object : options.table.objects) {
       object.mesh_unit = db.options().size.mesh_unit;
+      NameAsInDatabase(db, &object);
     }
     options.table.backdrop = !flags.no_backdrop;
     options.objects = flags.table.objects;

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cstdlib>
+#include <filesystem>
+#include <system_error>
 #include <utility>
 
 #include <fmt/format.h>
@@ -297,6 +299,21 @@ std::vector<ObjectClass> ProceduralClassesIn(const Database& database) {
     }
   }
   return classes;
+}
+
+void NameAsInDatabase(const Database& database, TableObjectSpec* spec) {
+  if (!spec->model.empty() || !spec->class_name.empty()) return;
+  for (const ModelRecord& model : database.models()) {
+    std::error_code error;
+    const bool same = model.source_path == spec->spec ||
+                      (!model.source_path.empty() && !spec->spec.empty() &&
+                       std::filesystem::equivalent(model.source_path, spec->spec, error) &&
+                       !error);
+    if (!same) continue;
+    spec->model = model.name;
+    spec->class_name = model.class_name;
+    return;
+  }
 }
 
 void RestrictScenesToObject(const std::string& spec, RecognitionSceneOptions* scenes) {

@@ -210,6 +210,12 @@ ScanTruth TableSceneTruth(const TableScene& scene);
 // The database's classes that are procedural classes (mug, bottle, …: what virtual scenes
 // can show), in the database's order.
 std::vector<ObjectClass> ProceduralClassesIn(const Database& database);
+// Names a table object drawn from one of the database's mesh files (the same file as a
+// model's source_path) as the database names that model: its name and class. A database
+// built from DIR/<group>/<model>.obj gives the model the class <group>, which the file's
+// name alone does not tell (TableObjectNames would make its class the stem). Objects
+// already named, and files of no model, keep their names.
+void NameAsInDatabase(const Database& database, TableObjectSpec* spec);
 // Restricts the scenes to `spec`: "CLASS" (any instance) or "CLASS:SEED" (that instance).
 // Throws sope::Error naming the spec for an unknown class or a malformed seed.
 void RestrictScenesToObject(const std::string& spec, RecognitionSceneOptions* scenes);

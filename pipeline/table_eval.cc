@@ -69,6 +69,7 @@ ScanReport ScanMeshScene(const Database& database, const TableEvalOptions& optio
     // database's model.
     spec.size = kSizeAsDatabase;
     spec.mesh_unit = database.options().size.mesh_unit;
+    NameAsInDatabase(database, &spec);  // the truth's class is the database's
     source_options.table.objects.push_back(spec);
   }
   VirtualTableSource source(source_options);

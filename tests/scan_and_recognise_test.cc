@@ -22,6 +22,7 @@
 #include "capture/rig_session.h"
 #include "core/file_util.h"
 #include "core/frame_set.h"
+#include "core/mesh.h"
 #include "core/point_cloud.h"
 #include "core/rig_calibration.h"
 #include "core/statistics.h"
@@ -385,6 +386,34 @@ TEST_F(ScanAndRecogniseCli, BadInputsAreOneClearLine) {
   ExpectOneLineError(Sope("scan-and-recognise --virtual", scratch, "env -u HOME -u XDG_CACHE_HOME"),
                      "no cache directory");
   EXPECT_FALSE(fs::exists(scratch.File("out")));
+}
+
+// A database of mesh files in a folder of their own (build-db: the folder is their class,
+// "kitchen"), none of them a procedural class: `--virtual --table --mesh FILE ...` puts
+// those files on the table (before, the command refused a database without procedural
+// classes), and the ground truth names each object as the database names its model.
+TEST(ScanAndRecogniseMeshTable, ObjectsOfAMeshDatabaseAreNamedAsInIt) {
+  testing::ScratchDir scratch;
+  const std::string kitchen = scratch.File("models/kitchen");
+  fs::create_directories(kitchen);
+  WriteMesh(kitchen + "/cup.obj", MakeObject(ObjectClass::kMug, 3));
+  WriteMesh(kitchen + "/flask.obj", MakeObject(ObjectClass::kBottle, 5));
+  DatabaseOptions options = DatabaseOptions::Preset("sope");
+  options.views_per_model = 60;
+  WriteDatabase(scratch.File("db.sopedb"), BuildDatabase(scratch.File("models"), options));
+  const SopeRun run = Sope("scan-and-recognise --virtual --table --mesh " +
+                               Quote(kitchen + "/cup.obj") + " --mesh " +
+                               Quote(kitchen + "/flask.obj") + " --db " +
+                               Quote(scratch.File("db.sopedb")) + " --scans 1 --json --quiet",
+                           scratch);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const nlohmann::json j = nlohmann::json::parse(run.out);
+  const nlohmann::json& truth = j.at("ground_truth").at("objects");
+  ASSERT_EQ(truth.size(), 2u) << j.dump();
+  for (const nlohmann::json& object : truth) {
+    EXPECT_EQ(object.at("class"), "kitchen") << object.dump();
+    EXPECT_TRUE(object.at("correct").get<bool>()) << object.dump();
+  }
 }
 
 TEST(ScanAndRecogniseDefaultDb, IsBuiltOnceAndCached) {
