@@ -1,6 +1,10 @@
 // sope build-db --models DIR --out DB.sopedb [--views N] [--layout thesis|fibonacci]
 //               [--hash lsh|sh|mlh|bre|itq] [--bits B] [--preset sope|thesis]
 //               [--units auto|m|cm|mm|in|METRES]
+#include <map>
+#include <string>
+
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include "app/cli_util.h"
@@ -84,6 +88,15 @@ int RunBuildDb(int argc, char** argv) {
   spdlog::info("{} meshes in {}; {} {} viewpoints each, {} {}-bit codes", models.size(),
                models_dir, options.views_per_model, ToString(options.layout),
                ToString(options.hash.method), options.hash.bits);
+  // The classes (DIR/<class>/<model>; a flat file's class is its name), so that a folder
+  // that groups unlike objects (a dataset's) is seen to make them one class.
+  std::map<std::string, int> class_sizes;
+  for (const ModelSource& model : models) ++class_sizes[model.class_name];
+  std::string classes;
+  for (const auto& [name, count] : class_sizes) {
+    classes += fmt::format("{}{} ({})", classes.empty() ? "" : ", ", name, count);
+  }
+  spdlog::info("{} classes: {}", class_sizes.size(), classes);
   BuildSummary summary;
   DatabaseData data;
   {
