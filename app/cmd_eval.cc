@@ -35,8 +35,8 @@ struct TableFlags {
                  "classes) and --clutter unknown objects, scanned through the full virtual-rig "
                  "pipeline and recognised in tabletop mode: detection recall/precision (model "
                  "right, ADD-S < 10% diameter), class recall, pose errors, unknown rejection, "
-                 "per-stage ms. Writes DIR/report.md, report.json, rotation_errors.png, "
-                 "center_errors.png, scans/");
+                 "per-stage ms, per-class figures. Writes DIR/report.md, report.json, "
+                 "confusion.png, rotation_errors.png, center_errors.png, scans/");
     app.add_option("--scenes", options.scenes, "--table: scenes")->capture_default_str();
     app.add_option("--min-objects", options.min_objects, "--table: objects per scene, least")
         ->capture_default_str();
@@ -78,7 +78,8 @@ int RunTableEval(const std::string& db_path,
                                  [&](int done, int) { progress.Update(done); });
   }
   std::printf("%s", summary.Markdown().c_str());
-  spdlog::info("report: {}/report.md, report.json, rotation_errors.png, center_errors.png", out);
+  spdlog::info("report: {}/report.md, report.json, confusion.png, rotation_errors.png, "
+               "center_errors.png", out);
   return 0;
 }
 

@@ -660,17 +660,20 @@ std::vector<std::string> WriteMillimetreModels(const std::string& models) {
 
 // `sope eval --table` of the meshes on 2 scenes of both: every object found, of the right
 // model, posed within ADD-S < 10% of the (scaled) diameter.
-void ExpectBothFoundOnTwoTables(const Database& db, const std::vector<std::string>& meshes) {
+TableEvalSummary ExpectBothFoundOnTwoTables(const Database& db,
+                                            const std::vector<std::string>& meshes,
+                                            const std::string& out_dir = "") {
   TableEvalOptions options;
   options.meshes = meshes;
   options.scenes = 2;
   options.min_objects = options.max_objects = 2;
   options.clutter = 0;
-  const TableEvalSummary summary = RunTableEvaluation(db, options, "");
+  const TableEvalSummary summary = RunTableEvaluation(db, options, out_dir);
   std::printf("%s", summary.Markdown().c_str());
   EXPECT_EQ(summary.known, 4);
   EXPECT_EQ(summary.correct, 4);
   EXPECT_EQ(summary.detections, 4);
+  return summary;
 }
 
 TEST(TableEvaluation, MeshesInMillimetresAreScaledAsTheDatabaseScaledThem) {
@@ -740,7 +743,23 @@ TEST(TableEvaluation, ObjectsAreNamedAsTheDatabaseNamesTheirModels) {
   EXPECT_EQ(spec.class_name, "household");
   EXPECT_EQ(spec.model, db->model(0).name);
   // `sope eval --table` with its default pool (every model file of the database).
-  ExpectBothFoundOnTwoTables(*db, meshes);
+  const TableEvalSummary summary =
+      ExpectBothFoundOnTwoTables(*db, meshes, scratch.File("eval"));
+  // The per-class figures and the confusion (rows true, columns detected) say the same.
+  ASSERT_EQ(summary.per_class.size(), 1u);
+  EXPECT_EQ(summary.per_class.at("household").known, 4);
+  EXPECT_EQ(summary.per_class.at("household").correct, 4);
+  EXPECT_EQ(summary.per_class.at("household").class_correct, 4);
+  ASSERT_EQ(summary.confusion.size(), 1u);
+  EXPECT_EQ(summary.confusion.begin()->first,
+            std::make_pair(std::string("household"), std::string("household")));
+  EXPECT_EQ(summary.confusion.begin()->second, 4);
+  const cv::Mat confusion = ReadImage(scratch.File("eval/confusion.png"));
+  EXPECT_GT(confusion.cols, 100);
+  const nlohmann::json report =
+      nlohmann::json::parse(ReadFileToString(scratch.File("eval/report.json"), "report"));
+  EXPECT_EQ(report.at("per_class").at("household").at("correct"), 4);
+  EXPECT_EQ(report.at("confusion").size(), 1u);
 }
 
 TEST(PipelineOptions, BadValuesAreNamed) {

@@ -112,13 +112,31 @@ std::optional<ScanReport> ScanProceduralScene(const Database& database,
   return report;
 }
 
+// The confusion's labels for the unknown objects and for nothing (no detection, no object).
+constexpr const char* kClutter = "clutter";
+constexpr const char* kNone = "none";
+
 // Adds one scanned scene's detections and truth matches to the summary's counts and errors.
 void CountScene(const ScanReport& report, TableEvalSummary* summary) {
   ++summary->scenes;
   SOPE_CHECK(report.truth.has_value(), "table evaluation: the source gave no ground truth");
-  summary->detections += report.scene ? static_cast<int>(report.scene->objects.size()) : 0;
+  const int detections = report.scene ? static_cast<int>(report.scene->objects.size()) : 0;
+  summary->detections += detections;
+  const auto detected_class = [&](int d) {
+    return d >= 0 ? report.scene->objects[d].best().class_name : std::string(kNone);
+  };
+  std::vector<uint8_t> matched(detections, 0);
   for (const TableObjectMatch& m : report.matches) {
     const ScanObjectTruth& truth = report.truth->objects[m.truth];
+    if (m.detection >= 0) matched[m.detection] = 1;
+    ++summary->confusion[{truth.known ? truth.class_name : std::string(kClutter),
+                          detected_class(m.detection)}];
+    if (truth.known) {
+      TableEvalSummary::ClassCounts& counts = summary->per_class[truth.class_name];
+      ++counts.known;
+      counts.correct += m.correct;
+      counts.class_correct += m.class_correct;
+    }
     if (!truth.known) {
       ++summary->clutter;
       summary->clutter_rejected += m.detection < 0;
@@ -137,6 +155,34 @@ void CountScene(const ScanReport& report, TableEvalSummary* summary) {
       summary->center_errors_m.push_back(m.pose_error->center_error_m);
     }
   }
+  for (int d = 0; d < detections; ++d) {
+    if (!matched[d]) ++summary->confusion[{std::string(kNone), detected_class(d)}];
+  }
+}
+
+// The confusion's labels: the classes in name order, then "clutter" and "none"; and its
+// counts, rows the true labels.
+std::vector<std::vector<int>> ConfusionCounts(const TableEvalSummary& summary,
+                                              std::vector<std::string>* labels) {
+  std::vector<std::string> names;
+  for (const auto& [pair, count] : summary.confusion) {
+    for (const std::string& name : {pair.first, pair.second}) {
+      if (name != kClutter && name != kNone) names.push_back(name);
+    }
+  }
+  std::sort(names.begin(), names.end());
+  names.erase(std::unique(names.begin(), names.end()), names.end());
+  names.push_back(kClutter);
+  names.push_back(kNone);
+  std::vector<std::vector<int>> counts(names.size(), std::vector<int>(names.size(), 0));
+  const auto index = [&](const std::string& name) {
+    return std::find(names.begin(), names.end(), name) - names.begin();
+  };
+  for (const auto& [pair, count] : summary.confusion) {
+    counts[index(pair.first)][index(pair.second)] += count;
+  }
+  *labels = std::move(names);
+  return counts;
 }
 
 // The summary's rates, median errors and per-stage median and p95 times (`stage_ms`: per
@@ -163,6 +209,15 @@ void WriteTableEvalReport(const TableEvalSummary& summary, const std::string& ou
   std::filesystem::create_directories(out_dir);
   WriteFileAtomic(JoinPath(out_dir, "report.md"), summary.Markdown());
   WriteFileAtomic(JoinPath(out_dir, "report.json"), summary.Json() + "\n");
+  if (!summary.confusion.empty()) {
+    std::vector<std::string> labels;
+    const std::vector<std::vector<int>> counts = ConfusionCounts(summary, &labels);
+    WriteImageAtomic(JoinPath(out_dir, "confusion.png"),
+                     DrawConfusionMatrix(counts, labels,
+                                         fmt::format("Tabletop: class recall {:.1f}% ({}/{})",
+                                                     100 * summary.class_recall,
+                                                     summary.class_correct, summary.known)));
+  }
   if (summary.rotation_errors_deg.empty()) return;
   WriteImageAtomic(JoinPath(out_dir, "rotation_errors.png"),
                    DrawHistogram(summary.rotation_errors_deg, 0.0, 10.0, 40,
@@ -272,6 +327,25 @@ std::string TableEvalSummary::Markdown() const {
   md += fmt::format("| median rotation error (mod symmetry), class-correct | {:.2f}° (n = {}) |\n",
                     median_rotation_deg, rotation_errors_deg.size());
   md += fmt::format("| median centre error, class-correct | {:.2f} mm |\n", 1e3 * median_center_m);
+  if (!per_class.empty()) {
+    md += "\n| class | objects | detected right | class right | most often taken for |\n"
+          "|---|---|---|---|---|\n";
+    for (const auto& [name, counts] : per_class) {
+      std::string taken_for = "–";
+      int most = 0;
+      for (const auto& [pair, count] : confusion) {
+        if (pair.first == name && pair.second != name && count > most) {
+          most = count;
+          taken_for = fmt::format("{} ({})", pair.second, count);
+        }
+      }
+      md += fmt::format("| {} | {} | {} | {} | {} |\n", name, counts.known, counts.correct,
+                        counts.class_correct, taken_for);
+    }
+    md += "\n`confusion.png`: rows the true classes (\"clutter\" the unknown objects, "
+          "\"none\" a detection of no object), columns the detected ones (\"none\": not "
+          "detected).\n";
+  }
   md += "\n| stage | median ms | p95 ms |\n|---|---|---|\n";
   for (size_t s = 0; s < stage_names.size(); ++s) {
     md += fmt::format("| {} | {:.1f} | {:.1f} |\n", stage_names[s], stage_median_ms[s],
@@ -303,6 +377,18 @@ std::string TableEvalSummary::Json() const {
     stages[stage_names[s]] = {{"median_ms", stage_median_ms[s]}, {"p95_ms", stage_p95_ms[s]}};
   }
   j["stages"] = stages;
+  nlohmann::json classes = nlohmann::json::object();
+  for (const auto& [name, counts] : per_class) {
+    classes[name] = {{"known", counts.known},
+                     {"correct", counts.correct},
+                     {"class_correct", counts.class_correct}};
+  }
+  j["per_class"] = classes;
+  nlohmann::json pairs = nlohmann::json::array();
+  for (const auto& [pair, count] : confusion) {
+    pairs.push_back({{"truth", pair.first}, {"detected", pair.second}, {"count", count}});
+  }
+  j["confusion"] = pairs;
   return j.dump();
 }
 

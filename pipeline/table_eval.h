@@ -13,7 +13,9 @@
 #pragma once
 
 #include <functional>
+#include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "pipeline/scan_and_recognise.h"
@@ -52,6 +54,16 @@ struct TableEvalSummary {
   int visible_known = 0, visible_correct = 0, visible_class_correct = 0;
   double recall = 0, precision = 0, class_recall = 0, rejection = 0, visible_recall = 0,
          visible_class_recall = 0;
+  // Per true class of the known objects: objects, those detected right, those of the right
+  // class.
+  struct ClassCounts {
+    int known = 0, correct = 0, class_correct = 0;
+  };
+  std::map<std::string, ClassCounts> per_class;
+  // (true class, detected class) → objects: "clutter" the unknown objects' class, a detected
+  // class "none" an object nothing was matched to, a true class "none" a detection matched
+  // to no object.
+  std::map<std::pair<std::string, std::string>, int> confusion;
   std::vector<double> rotation_errors_deg, center_errors_m;  // class-correct matches
   double median_rotation_deg = 0, median_center_m = 0;
   // Per stage: median and 95th percentile, ms.
@@ -64,8 +76,8 @@ struct TableEvalSummary {
   std::string Json() const;
 };
 
-// Runs the scenes; with `out_dir` writes report.md, report.json, rotation_errors.png,
-// center_errors.png and (when options.controller.out_dir is empty) the per-scan files
+// Runs the scenes; with `out_dir` writes report.md, report.json, confusion.png (rows the
+// true classes, columns the detected ones), rotation_errors.png, center_errors.png and (when options.controller.out_dir is empty) the per-scan files
 // under out_dir/scans. `progress(done, total)` after each scene.
 TableEvalSummary RunTableEvaluation(const Database& database, const TableEvalOptions& options,
                                     const std::string& out_dir,
