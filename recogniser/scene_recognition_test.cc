@@ -1229,6 +1229,75 @@ TEST(SceneVerification, PointsAnAcceptedHypothesisExplainsNoLongerCountAgainstAn
       [&] { VerifyHypotheses(scene, scene, first, options, {}, &cache); }, {"cache holds 2"});
 }
 
+// The surface of a cube `size` metres wide centred at (x, 0, z), sampled every 2 mm,
+// outward normals.
+PointCloud Cube(float x, float z, float size) {
+  PointCloud cube;
+  const float h = size / 2;
+  for (int axis = 0; axis < 3; ++axis) {
+    for (const float side : {-1.0f, 1.0f}) {
+      for (float u = -h; u <= h + 1e-6f; u += 0.002f) {
+        for (float v = -h; v <= h + 1e-6f; v += 0.002f) {
+          Eigen::Vector3f p, n = Eigen::Vector3f::Zero();
+          p[axis] = side * h;
+          p[(axis + 1) % 3] = u;
+          p[(axis + 2) % 3] = v;
+          n[axis] = side;
+          cube.points.push_back(p + Eigen::Vector3f(x, 0.0f, z));
+          cube.normals.push_back(n);
+        }
+      }
+    }
+  }
+  return cube;
+}
+
+// Two solid objects cannot fill the same space: cubes A and B, 4 cm wide, B turned 30°
+// about the line of sight, their centres `gap` apart, each explaining its face of the scene
+// (the selection's gain test off: here each is accepted whatever it duplicates). At 1.5 cm
+// each cube holds well over max_mutual_overlap of the other's surface sample inside its
+// hull: only one is accepted. At 5 cm (1 cm apart at the nearest) both are accepted. (A single
+// flat face pressed into another object puts at most a sixth of a cube's surface inside
+// it: below the default 0.15.)
+TEST(SceneVerification, AHypothesisFillingAnAcceptedOnesSpaceIsLeftOut) {
+  const PointCloud cube = Cube(0.0f, 0.0f, 0.04f);
+  const PointCloud face = Square(0.0f, -0.02f, 0.04f);
+  for (const float gap : {0.015f, 0.05f}) {
+    const Rigid3d cam_from_a(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.0, 0.0, 0.6));
+    const Rigid3d cam_from_b(Eigen::AngleAxisd(M_PI / 6, Eigen::Vector3d::UnitZ()).matrix(),
+                             Eigen::Vector3d(gap, 0.0, 0.6));
+    PointCloud scene;
+    for (const Eigen::Vector3f& p : face.points) {
+      scene.points.push_back((cam_from_a * p.cast<double>()).cast<float>());
+    }
+    for (const Eigen::Vector3f& p : face.points) {
+      const Eigen::Vector3f q = (cam_from_b * p.cast<double>()).cast<float>();
+      if (std::abs(q.x()) > 0.0201f || std::abs(q.y()) > 0.0201f) scene.points.push_back(q);
+    }
+    const std::vector<SceneHypothesis> hypotheses = {{&cube, cam_from_a, 0.0, 0.0},
+                                                     {&cube, cam_from_b, 0.0, 0.0}};
+    SceneVerificationOptions options;
+    options.min_gain_fraction = 0.0;
+    options.duplicate_weight = 0.0;
+    options.exchange_rounds = 0;
+    options.max_mutual_overlap = 0.0;
+    const std::vector<HypothesisEvidence> without =
+        VerifyHypotheses(scene, scene, hypotheses, options);
+    EXPECT_TRUE(without[0].accepted) << gap;
+    EXPECT_TRUE(without[1].accepted) << gap;
+    options.max_mutual_overlap = SceneVerificationOptions().max_mutual_overlap;
+    const std::vector<HypothesisEvidence> with = VerifyHypotheses(scene, scene, hypotheses, options);
+    if (gap > 0.04f) {
+      EXPECT_TRUE(with[0].accepted && with[1].accepted) << gap;
+    } else {
+      // The one of larger gain is accepted, the other left out.
+      EXPECT_EQ(with[0].accepted + with[1].accepted, 1) << gap;
+      EXPECT_EQ(with[0].overlapping + with[1].overlapping, 1) << gap;
+      EXPECT_NE(with[0].accepted, with[0].overlapping) << gap;
+    }
+  }
+}
+
 // The exchanges after the greedy selection: hypothesis W explains both squares A and B at
 // once but also puts a patch in front of A where the camera saw A (free-space violations).
 // Its gain (882 points less 121 violations) beats A's or B's alone (441 each), so the

@@ -4,7 +4,12 @@
 #include <cmath>
 #include <iterator>
 #include <limits>
+#include <map>
+#include <memory>
+#include <optional>
+#include <utility>
 
+#include "core/convex_hull.h"
 #include "core/error.h"
 #include "core/run_jobs.h"
 #include "recogniser/pose.h"
@@ -256,12 +261,103 @@ HypothesisEvidence EvaluateHypothesis(const PointCloud& scene, const SceneHypoth
   return e;
 }
 
+// A model cloud's sample (≤ kOverlapSamplePoints, model frame), its convex hull (none:
+// flat or degenerate) and bounding sphere, for the overlap test; `size` and `first` the
+// cloud's, to tell a cached shape's cloud from another at the same address.
+struct OverlapShape {
+  size_t size = 0;
+  Eigen::Vector3f first = Eigen::Vector3f::Zero();
+  std::vector<Eigen::Vector3d> sample;
+  std::optional<ConvexHull> hull;
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  double radius = 0.0;
+};
+using OverlapShapes = std::map<const PointCloud*, std::unique_ptr<OverlapShape>>;
+// The overlap test's answers by pair of hypotheses (indices: a verification cache's
+// hypotheses stay the same from call to call, new ones appended).
+using OverlapPairs = std::map<std::pair<int, int>, bool>;
+constexpr size_t kOverlapSamplePoints = 400;
+
+// Whether two hypotheses' models fill the same space (max_mutual_overlap): each model's
+// surface sample, at its pose, against the other's convex hull. The shapes and the pairs'
+// answers are computed when first needed and kept in `shapes` and `pairs` (a verification
+// cache's: every call on one scene).
+class OverlapTest {
+ public:
+  OverlapTest(const std::vector<SceneHypothesis>& hypotheses,
+              const SceneVerificationOptions& options, OverlapShapes* shapes,
+              OverlapPairs* pairs)
+      : hypotheses_(hypotheses), options_(options), shapes_(*shapes), pairs_(*pairs) {}
+
+  bool Overlap(int a, int b) {
+    if (options_.max_mutual_overlap <= 0) return false;
+    const auto key = std::minmax(a, b);
+    const auto found = pairs_.find(key);
+    if (found != pairs_.end()) return found->second;
+    const OverlapShape& shape_a = ShapeOf(hypotheses_[a].model_cloud);
+    const OverlapShape& shape_b = ShapeOf(hypotheses_[b].model_cloud);
+    const Rigid3d& pose_a = hypotheses_[a].cam_from_model;
+    const Rigid3d& pose_b = hypotheses_[b].cam_from_model;
+    bool overlap = false;
+    if (shape_a.hull && shape_b.hull &&
+        (pose_a * shape_a.centre - pose_b * shape_b.centre).norm() <
+            shape_a.radius + shape_b.radius) {
+      overlap = InsideFraction(shape_a, pose_a, shape_b, pose_b) >= options_.max_mutual_overlap &&
+                InsideFraction(shape_b, pose_b, shape_a, pose_a) >= options_.max_mutual_overlap;
+    }
+    pairs_.emplace(key, overlap);
+    return overlap;
+  }
+
+ private:
+  const OverlapShape& ShapeOf(const PointCloud* cloud) {
+    std::unique_ptr<OverlapShape>& slot = shapes_[cloud];
+    const size_t n = cloud->size();
+    if (slot && slot->size == n && (n == 0 || slot->first == cloud->points[0])) return *slot;
+    slot = std::make_unique<OverlapShape>();
+    slot->size = n;
+    if (n > 0) slot->first = cloud->points[0];
+    const size_t step = std::max<size_t>(1, n / kOverlapSamplePoints);
+    for (size_t i = 0; i < n; i += step) slot->sample.push_back(cloud->points[i].cast<double>());
+    if (slot->sample.size() < 4) return *slot;
+    for (const Eigen::Vector3d& p : slot->sample) slot->centre += p;
+    slot->centre /= static_cast<double>(slot->sample.size());
+    for (const Eigen::Vector3d& p : slot->sample) {
+      slot->radius = std::max(slot->radius, (p - slot->centre).norm());
+    }
+    try {
+      slot->hull = ComputeConvexHull(slot->sample);
+    } catch (const Error&) {
+      slot->hull.reset();  // flat or degenerate: no volume to overlap
+    }
+    return *slot;
+  }
+
+  // The fraction of `points`' sample (at pose_points) inside `hull`'s hull (at pose_hull)
+  // deeper than overlap_margin.
+  double InsideFraction(const OverlapShape& hull, const Rigid3d& pose_hull,
+                        const OverlapShape& points, const Rigid3d& pose_points) const {
+    const Rigid3d hull_from_points = pose_hull.Inverse() * pose_points;
+    int inside = 0;
+    for (const Eigen::Vector3d& p : points.sample) {
+      inside += hull.hull->Distance(hull_from_points * p) < -options_.overlap_margin;
+    }
+    return static_cast<double>(inside) / static_cast<double>(points.sample.size());
+  }
+
+  const std::vector<SceneHypothesis>& hypotheses_;
+  const SceneVerificationOptions& options_;
+  OverlapShapes& shapes_;
+  OverlapPairs& pairs_;
+};
+
 // Greedy global selection: repeatedly accepts the passing hypothesis of the largest gain
-// (fresh points less duplicates, violations and the prior) until none gains enough.
+// (fresh points less duplicates, violations and the prior) until none gains enough; one
+// whose model fills the space of an accepted one's (`overlap`) is left out instead.
 // `taken` (per scene point: explained by an accepted hypothesis) and `done` (per
 // hypothesis) carry over between calls.
 void SelectGreedily(const std::vector<SceneHypothesis>& hypotheses,
-                    const SceneVerificationOptions& options,
+                    const SceneVerificationOptions& options, OverlapTest* overlap,
                     std::vector<HypothesisEvidence>* evidence,
                     std::vector<uint8_t>* taken_points, std::vector<uint8_t>* done_hypotheses) {
   std::vector<HypothesisEvidence>& out = *evidence;
@@ -295,6 +391,14 @@ void SelectGreedily(const std::vector<SceneHypothesis>& hypotheses,
       break;
     }
     done[best] = 1;
+    bool fills_another = false;
+    for (size_t g = 0; g < hypotheses.size() && !fills_another; ++g) {
+      fills_another = out[g].accepted && overlap->Overlap(best, static_cast<int>(g));
+    }
+    if (fills_another) {
+      out[best].overlapping = true;
+      continue;
+    }
     out[best].accepted = true;
     out[best].duplicates = best_duplicates;
     for (const int j : out[best].explained) taken[j] = 1;
@@ -307,11 +411,11 @@ void SelectGreedily(const std::vector<SceneHypothesis>& hypotheses,
 // selection, until none does.
 void CompleteSelection(const std::vector<SceneHypothesis>& hypotheses,
                        const std::vector<LevelExplanations>& levels,
-                       const SceneVerificationOptions& options,
+                       const SceneVerificationOptions& options, OverlapTest* overlap,
                        std::vector<HypothesisEvidence>* evidence, std::vector<uint8_t>* taken,
                        std::vector<uint8_t>* done) {
   std::vector<HypothesisEvidence>& out = *evidence;
-  SelectGreedily(hypotheses, options, &out, taken, done);
+  SelectGreedily(hypotheses, options, overlap, &out, taken, done);
   for (int round = 0; round < options.relook_rounds; ++round) {
     bool more = false;
     for (size_t h = 0; h < hypotheses.size(); ++h) {
@@ -324,7 +428,7 @@ void CompleteSelection(const std::vector<SceneHypothesis>& hypotheses,
       }
     }
     if (!more) break;
-    SelectGreedily(hypotheses, options, &out, taken, done);
+    SelectGreedily(hypotheses, options, overlap, &out, taken, done);
   }
 }
 
@@ -364,7 +468,7 @@ void SceneVerificationOptions::Check() const {
   for (const double fraction :
        {min_model_fit, min_local_explained, max_violation_fraction, min_gain_fraction,
         min_class_probability, class_min_model_fit, class_min_local_explained,
-        class_max_violation_fraction, scaled_min_model_fit}) {
+        class_max_violation_fraction, scaled_min_model_fit, max_mutual_overlap}) {
     SOPE_CHECK(fraction >= 0.0 && fraction <= 1.0,
                "scene verification: fractions must lie in [0, 1], got {}", fraction);
   }
@@ -377,12 +481,16 @@ void SceneVerificationOptions::Check() const {
              relook_rounds);
   SOPE_CHECK(exchange_rounds >= 0, "scene verification: exchange rounds must be ≥ 0, got {}",
              exchange_rounds);
+  SOPE_CHECK(overlap_margin >= 0, "scene verification: overlap margin must be ≥ 0 m, got {}",
+             overlap_margin);
 }
 
 struct VerificationCache::Impl {
   std::unique_ptr<DepthGrid> depth;
   std::vector<HypothesisEvidence> evidence;  // each hypothesis's own, before the selection
   std::vector<LevelExplanations> levels;
+  OverlapShapes shapes;  // the overlap test's, by model cloud
+  OverlapPairs overlap_pairs;
 };
 VerificationCache::VerificationCache() : impl(std::make_unique<Impl>()) {}
 VerificationCache::~VerificationCache() = default;
@@ -421,7 +529,8 @@ std::vector<HypothesisEvidence> VerifyHypotheses(
   const std::vector<LevelExplanations>& levels = kept.levels;
   std::vector<HypothesisEvidence> out = kept.evidence;
   std::vector<uint8_t> taken(scene.size(), 0), done(hypotheses.size(), 0);
-  CompleteSelection(hypotheses, levels, options, &out, &taken, &done);
+  OverlapTest overlap(hypotheses, options, &kept.shapes, &kept.overlap_pairs);
+  CompleteSelection(hypotheses, levels, options, &overlap, &out, &taken, &done);
   // Exchanges: each round, the first accepted hypothesis whose removal lets the completed
   // selection gain more is dropped (the objective rises strictly, so this ends).
   for (int round = 0; round < options.exchange_rounds; ++round) {
@@ -440,7 +549,8 @@ std::vector<HypothesisEvidence> VerifyHypotheses(
         for (const int j : out[g].explained) trial_taken[j] = 1;
       }
       trial_done[h] = 1;
-      CompleteSelection(hypotheses, levels, options, &trial, &trial_taken, &trial_done);
+      CompleteSelection(hypotheses, levels, options, &overlap, &trial, &trial_taken,
+                        &trial_done);
       if (SelectionObjective(hypotheses, trial, options, scene.size()) > current + 0.5) {
         trial[h] = kept.evidence[h];  // judged on its own again, not accepted
         trial[h].duplicates = 0;
