@@ -77,8 +77,9 @@ struct TableEvalSummary {
 };
 
 // Runs the scenes; with `out_dir` writes report.md, report.json, confusion.png (rows the
-// true classes, columns the detected ones), rotation_errors.png, center_errors.png and (when options.controller.out_dir is empty) the per-scan files
-// under out_dir/scans. `progress(done, total)` after each scene.
+// true classes, columns the detected ones), rotation_errors.png, center_errors.png and
+// (when options.controller.out_dir is empty) the per-scan files under out_dir/scans.
+// `progress(done, total)` after each scene.
 TableEvalSummary RunTableEvaluation(const Database& database, const TableEvalOptions& options,
                                     const std::string& out_dir,
                                     const std::function<void(int, int)>& progress = {});

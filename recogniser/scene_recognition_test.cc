@@ -1286,7 +1286,8 @@ TEST(SceneVerification, AHypothesisFillingAnAcceptedOnesSpaceIsLeftOut) {
     EXPECT_TRUE(without[0].accepted) << gap;
     EXPECT_TRUE(without[1].accepted) << gap;
     options.max_mutual_overlap = SceneVerificationOptions().max_mutual_overlap;
-    const std::vector<HypothesisEvidence> with = VerifyHypotheses(scene, scene, hypotheses, options);
+    const std::vector<HypothesisEvidence> with =
+        VerifyHypotheses(scene, scene, hypotheses, options);
     if (gap > 0.04f) {
       EXPECT_TRUE(with[0].accepted && with[1].accepted) << gap;
     } else {
