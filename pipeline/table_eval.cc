@@ -131,12 +131,6 @@ void CountScene(const ScanReport& report, TableEvalSummary* summary) {
     if (m.detection >= 0) matched[m.detection] = 1;
     ++summary->confusion[{truth.known ? truth.class_name : std::string(kClutter),
                           detected_class(m.detection)}];
-    if (truth.known) {
-      TableEvalSummary::ClassCounts& counts = summary->per_class[truth.class_name];
-      ++counts.known;
-      counts.correct += m.correct;
-      counts.class_correct += m.class_correct;
-    }
     if (!truth.known) {
       ++summary->clutter;
       summary->clutter_rejected += m.detection < 0;
@@ -145,6 +139,10 @@ void CountScene(const ScanReport& report, TableEvalSummary* summary) {
     ++summary->known;
     summary->correct += m.correct;
     summary->class_correct += m.class_correct;
+    TableEvalSummary::ClassCounts& counts = summary->per_class[truth.class_name];
+    ++counts.known;
+    counts.correct += m.correct;
+    counts.class_correct += m.class_correct;
     if (truth.visible_fraction >= 0.5) {
       ++summary->visible_known;
       summary->visible_correct += m.correct;

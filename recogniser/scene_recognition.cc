@@ -349,6 +349,12 @@ std::vector<size_t> LooksSideBySide(
   return added;
 }
 
+// Whether a cluster's unexplained fraction `left` is a remainder worth recognising whole
+// (SceneRecognitionOptions::remainder_fraction).
+bool LargeRemainder(const SceneRecognitionOptions& options, double left) {
+  return options.remainder_fraction > 0 && left >= options.remainder_fraction;
+}
+
 // The database models of class `class_index`, by index (an instance database has one per
 // class: the object on the table is one of them, of its size).
 std::vector<int> ModelsOfClass(const Database& database, int class_index) {
@@ -1374,8 +1380,7 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   const int first_remainder = num_clusters + static_cast<int>(accepted.size());
   std::vector<int> remainder_label(num_clusters, -1), remainder_cluster;
   for (int c = 0; c < num_clusters; ++c) {
-    if (!options.join_remainders || unexplained[c] || options.remainder_fraction <= 0 ||
-        left[c] < options.remainder_fraction) {
+    if (!options.join_remainders || unexplained[c] || !LargeRemainder(options, left[c])) {
       continue;
     }
     remainder_label[c] = first_remainder + static_cast<int>(remainder_cluster.size());
@@ -1811,9 +1816,6 @@ bool AddSizeHypotheses(const SceneContext& ctx, HypothesisPool* pool) {
   return std::any_of(added.begin(), added.end(), [](size_t n) { return n > 0; });
 }
 
-// Every cluster's first recognition gets its rolled hypotheses (AddRolledOf), once, for
-// the classes none of its hypotheses was accepted as in `evidence` (a mug already found
-// needs no other turn to be a mug). True when that added hypotheses.
 // What each cluster's accepted hypotheses are: their classes, and the best score on the
 // cluster among them (0: none accepted).
 struct AcceptedOnClusters {
@@ -1834,6 +1836,9 @@ AcceptedOnClusters AcceptedOn(size_t num_clusters, const std::vector<HypothesisE
   return out;
 }
 
+// Every cluster's first recognition gets its rolled hypotheses (AddRolledOf), once, for
+// the classes none of its hypotheses was accepted as in `evidence` (a mug already found
+// needs no other turn to be a mug). True when that added hypotheses.
 bool AddRolledHypotheses(const SceneContext& ctx, const std::vector<HypothesisEvidence>& evidence,
                          HypothesisPool* pool) {
   if (ctx.options.roll_steps <= 1) return false;
@@ -2070,7 +2075,7 @@ bool AddRemainderHypotheses(const SceneContext& ctx, const std::vector<uint8_t>&
   for (size_t c = 0; c < clusters.size(); ++c) {
     // No accepted hypothesis: the whole cluster was tried.
     if (!has_accepted[c] || pool->remainder_tried[c]) continue;
-    const bool whole = options.remainder_fraction > 0 && left[c] >= options.remainder_fraction;
+    const bool whole = LargeRemainder(options, left[c]);
     const bool parts =
         options.remainder_part_fraction > 0 && left[c] >= options.remainder_part_fraction;
     if (!whole && !parts) continue;
@@ -2517,8 +2522,7 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     std::vector<bool> unexplained(clusters.size()), to_split(clusters.size());
     for (size_t c = 0; c < clusters.size(); ++c) {
       unexplained[c] = !has_accepted[c] && left[c] > 0.5;
-      to_split[c] = unexplained[c] ||
-                    (options.remainder_fraction > 0 && left[c] >= options.remainder_fraction);
+      to_split[c] = unexplained[c] || LargeRemainder(options, left[c]);
     }
     const Stopwatch look;
     bool added = AddRemainderHypotheses(ctx, explained, left, has_accepted, &pool);
