@@ -597,11 +597,13 @@ TEST(TableJoins, AnObjectTouchingAnotherIsJoinedWithItsPartByItsRemainder) {
 // way) gives the same cloud, and without consistency the scan is the usual one.
 TEST(TableScan, FillsOnlyNearWhatStandsOnTheTable) {
   const SourceScan scan = EvaluationTableScene(301, 0);
+  // No range band from the scene's truth (a live rig has none): the user's band or the
+  // default, here the default's.
+  EXPECT_FALSE(scan.band.has_value());
   const ScanOptions scan_options;
   const Triangulator triangulator(scan.calibration, scan_options.triangulation);
   const DecoderOptions& options = scan_options.decoder;
-  TableSegmentationOptions segmentation;
-  if (scan.band) segmentation.max_range = scan.band->max_range;
+  const TableSegmentationOptions segmentation;
   const ScanResult whole = ScanFrameSet(scan.frames, triangulator, options);
   const ScanResult table = ScanTableFrameSet(scan.frames, triangulator, options, segmentation);
   CorrespondenceMap plain = Decode(scan.frames, PlainTableDecoderOptions(options));

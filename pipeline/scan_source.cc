@@ -274,17 +274,7 @@ SourceScan VirtualTableSource::Next(int index, const CaptureProgress& progress) 
   scan.source = "virtual table";
   scan.truth = TableSceneTruth(scene_);
   scan.tabletop = true;
-  // A band that keeps every object (and the table around them) and drops the wall: until
-  // the controller segments by the table, what the single-object path can use.
-  ObjectSegmentationOptions band;
-  double farthest = 0.0;
-  for (const TableObjectTruth& object : scene_.objects) {
-    for (const Eigen::Vector3f& v : object.mesh.vertices) {
-      farthest = std::max(farthest, (object.cam_from_model * v.cast<double>()).norm());
-    }
-  }
-  band.max_range = farthest + 0.02;
-  scan.band = band;
+  // No range band from the truth: the tabletop path segments by the table itself.
   const double start = NowMs();
   scan.frames = session_->Capture(sequence_, SessionProgress(progress));
   scan.capture_ms = NowMs() - start;
