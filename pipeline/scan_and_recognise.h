@@ -40,7 +40,7 @@ struct ScanAndRecogniseOptions {
   ScanOptions scan;  // decoding and triangulation
   RecognitionOptions recognition;
   // The range band, metres from the camera centre. Unset: the source's band when it knows
-  // one (virtual scenes), else ObjectSegmentationOptions' defaults.
+  // one (single-object virtual scenes), else ObjectSegmentationOptions' defaults.
   std::optional<double> min_range;
   std::optional<double> max_range;
   // Scans to take; −1: until the source is exhausted or cancelled. A source of fewer scans

@@ -63,7 +63,8 @@ struct SourceScan {
   // segments by the table, not by a range band alone.
   bool tabletop = false;
   // A range band that keeps the object and none of the background, when the source knows
-  // one (the virtual scenes do); else the controller's default.
+  // one (the single-object virtual scenes do; table scenes give none: the tabletop path
+  // segments by the table); else the controller's default.
   std::optional<ObjectSegmentationOptions> band;
   double capture_ms = 0.0;     // capturing or loading the frame set
 };
