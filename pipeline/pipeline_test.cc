@@ -597,8 +597,8 @@ TEST(TableJoins, AnObjectTouchingAnotherIsJoinedWithItsPartByItsRemainder) {
 // way) gives the same cloud, and without consistency the scan is the usual one.
 TEST(TableScan, FillsOnlyNearWhatStandsOnTheTable) {
   const SourceScan scan = EvaluationTableScene(301, 0);
-  // No range band from the scene's truth (a live rig has none): the user's band or the
-  // default, here the default's.
+  // The source gives no range band from the scene's truth (a live rig has none): the
+  // tabletop path runs with the default band.
   EXPECT_FALSE(scan.band.has_value());
   const ScanOptions scan_options;
   const Triangulator triangulator(scan.calibration, scan_options.triangulation);
