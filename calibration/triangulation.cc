@@ -155,6 +155,62 @@ cv::Mat PlaneTable(const cv::Mat& extended, int margin, int width, int height, b
   return planes;
 }
 
+// How far the plane table's interpolated plane strays from the chord the exact path builds
+// at the same sub-pixel (column, row) — through the bilinearly interpolated rays at the
+// row ± margin (column ± margin) — in projector pixels along the coded axis: the coded
+// coordinate where each plane meets the interpolated ray of that row (column), at the
+// centres of cells 8 apart and of the last ones (the bilinear interpolation's error is
+// largest at a cell's centre). Mild lenses give ~2e-5 px, about the float rounding of the
+// grid itself; a strongly distorted wide-angle projector ~3e-4 px (the column surface
+// curves within a cell).
+double PlaneTableDeviationPx(const cv::Mat& extended, const cv::Mat& planes, int margin,
+                             bool columns, double focal) {
+  const auto bilinear = [](const cv::Mat& m, double u, double v) {
+    const int x0 = std::min(static_cast<int>(u), m.cols - 2);
+    const int y0 = std::min(static_cast<int>(v), m.rows - 2);
+    const double fu = u - x0, fv = v - y0;
+    const cv::Vec2f a = m.at<cv::Vec2f>(y0, x0), b = m.at<cv::Vec2f>(y0, x0 + 1);
+    const cv::Vec2f c = m.at<cv::Vec2f>(y0 + 1, x0), d = m.at<cv::Vec2f>(y0 + 1, x0 + 1);
+    Eigen::Vector2d out;
+    for (int k = 0; k < 2; ++k) {
+      out[k] = (1 - fv) * ((1 - fu) * a[k] + fu * b[k]) + fv * ((1 - fu) * c[k] + fu * d[k]);
+    }
+    return out;
+  };
+  // Every kStep-th cell and the last of each axis (the deviation varies smoothly with the
+  // lens and is largest at the borders).
+  constexpr int kStep = 8;
+  const auto cells = [](int count) {
+    std::vector<int> out;
+    for (int k = 0; k < count; k += kStep) out.push_back(k);
+    if (count > 0 && out.back() != count - 1) out.push_back(count - 1);
+    return out;
+  };
+  const std::vector<int> cell_rows = cells(planes.rows - 1), cell_columns = cells(planes.cols - 1);
+  std::vector<double> worst(cell_rows.size(), 0.0);
+  cv::parallel_for_(cv::Range(0, static_cast<int>(cell_rows.size())), [&](const cv::Range& range) {
+    for (int k = range.start; k < range.end; ++k) {
+      const double v = cell_rows[k] + 0.5;
+      for (const int c : cell_columns) {
+        const double u = c + 0.5;
+        const Eigen::Vector2d ray = bilinear(extended, u + margin, v + margin);
+        const Eigen::Vector2d a = columns ? bilinear(extended, u + margin, v)
+                                          : bilinear(extended, u, v + margin);
+        const Eigen::Vector2d b = columns ? bilinear(extended, u + margin, v + 2 * margin)
+                                          : bilinear(extended, u + 2 * margin, v + margin);
+        const double nx = a.y() - b.y(), ny = b.x() - a.x(), nz = a.x() * b.y() - a.y() * b.x();
+        const Eigen::Vector2d table = bilinear(planes, u, v);
+        // Columns: x = −(n_y·y + n_z) / n_x on the ray's y; rows: y = −(n_x·x + n_z) / n_y.
+        const double deviation =
+            columns ? (ny / nx - table[0]) * ray.y() + (nz / nx - table[1])
+                    : (nx / ny - table[0]) * ray.x() + (nz / ny - table[1]);
+        worst[k] = std::max(worst[k], std::abs(deviation) * focal);
+      }
+    }
+  });
+  return worst.empty() ? 0.0 : *std::max_element(worst.begin(), worst.end());
+}
+
 }  // namespace
 
 std::string ToString(TriangulationMethod method) {
@@ -194,6 +250,12 @@ Triangulator::Triangulator(const RigCalibration& calibration,
   column_planes_ = PlaneTable(extended, kMargin, projector.width, projector.height, true);
   row_planes_ = PlaneTable(extended, kMargin, projector.width, projector.height, false);
   fast_tables_ = projector.width >= 2 && projector.height >= 2;
+  if (fast_tables_) {
+    column_plane_deviation_px_ =
+        PlaneTableDeviationPx(extended, column_planes_, kMargin, true, projector.matrix(0, 0));
+    row_plane_deviation_px_ =
+        PlaneTableDeviationPx(extended, row_planes_, kMargin, false, projector.matrix(1, 1));
+  }
 }
 
 size_t Triangulator::TableBytes() const {
@@ -612,6 +674,28 @@ void TableNormal(int n, const double* __restrict first, const double* __restrict
   }
 }
 
+// The plane-table step: the plane at (coded, landed[i]) (column, row for columns) from the
+// plane table `planes`, met by the camera rays q (w->q_x …): RayPlaneStep's w->numerator,
+// w->denominator, w->next (the row the point lands on) and w->valid; on_grid[i] whether
+// (coded, landed) was on the table. The chord step's result within the table's deviation
+// from the chord (Triangulator::kPlaneTableMaxDeviationPx), from one lookup instead of two.
+template <bool kColumns, bool kRational>
+void PlaneStep(int n, const Pose& pose, const Lens& lens, const Grid& planes,
+               const float* __restrict coded, const double* __restrict landed,
+               Triangulator::RowScratch* w, uint8_t* __restrict on_grid) {
+  float* __restrict look_u = w->look_uf;
+  float* __restrict look_v = w->look_vf;
+  for (int i = 0; i < n; ++i) {
+    const float l = static_cast<float>(landed[i]);
+    look_u[i] = kColumns ? coded[i] : l;
+    look_v[i] = kColumns ? l : coded[i];
+  }
+  Interpolate(planes, n, look_u, look_v, w, w->chord, w->chord + kChunk, on_grid);
+  TableNormal<kColumns>(n, w->chord, w->chord + kChunk, w->out0, w->out1, w->out2);
+  RayPlaneStep<kColumns, kRational>(n, pose, lens, w->q_x, w->q_y, w->q_z, w->out0, w->out1,
+                                    w->out2, w->numerator, w->denominator, w->next, w->valid);
+}
+
 // The chord step: the plane through the projector rays at (coded, landed[i] ± kHalf)
 // (rows ± kHalf for columns, columns for rows) from the ray grid with its margin, met by
 // the camera rays q (w->q_x …): RayPlaneStep's w->numerator, w->denominator, w->next (the
@@ -762,13 +846,13 @@ void RayPlaneFromCentre(int n, const Pose& pose, const Lens& lens, const Grid& p
 }
 
 // One axis coded, with predicted rows (columns): where the rows above give a prediction
-// (`predicted`, NaN: none), the chord through the predicted row at once — kept when its point
-// lands within kPredictedMaxRowShiftPx of it (the chord's error is second order in that
-// distance) — and RayPlaneFromCentre for the others. landed_row: the row each point landed
-// on.
+// (`predicted`, NaN: none), the chord through the predicted row at once (`plane_step`: the
+// plane table's plane there, PlaneStep) — kept when its point lands within
+// kPredictedMaxRowShiftPx of it (the chord's error is second order in that distance) — and
+// RayPlaneFromCentre for the others. landed_row: the row each point landed on.
 template <bool kColumns, bool kRational>
 void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes,
-                   const Grid& grid, double min_depth, double max_depth,
+                   const Grid& grid, bool plane_step, double min_depth, double max_depth,
                    const float* __restrict ray_x, const float* __restrict ray_y,
                    const float* __restrict coded, const double* __restrict predicted,
                    Triangulator::RowScratch* w, float* __restrict out_x,
@@ -786,7 +870,11 @@ void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes
   int redo_count = 0;
   if (predictions > 0) {
     ProjectorFrameRays(n, pose, ray_x, ray_y, w);
-    ChordStep<kColumns, kRational>(n, pose, lens, grid, coded, landed, w, w->on_grid);
+    if (plane_step) {
+      PlaneStep<kColumns, kRational>(n, pose, lens, planes, coded, landed, w, w->on_grid);
+    } else {
+      ChordStep<kColumns, kRational>(n, pose, lens, grid, coded, landed, w, w->on_grid);
+    }
     const double* __restrict num = w->numerator;
     const double* __restrict den = w->denominator;
     const double* __restrict next = w->next;
@@ -924,6 +1012,8 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
   const Grid projector_grid(projector_rays_);
   const Grid planes(columns ? column_planes_ : row_planes_);
   const Grid margin_grid(projector_rays_with_margin_);
+  const bool plane_step = (columns ? column_plane_deviation_px_ : row_plane_deviation_px_) <=
+                          kPlaneTableMaxDeviationPx;
   for (int begin = 0; begin < n; begin += kChunk) {
     const int m = std::min(kChunk, n - begin);
     // The chunk's camera rays and decoded coordinates.
@@ -961,9 +1051,9 @@ void Triangulator::TriangulateRow(const CorrespondenceMap& map, const uint8_t* r
       std::fill(w.predicted, w.predicted + m, std::numeric_limits<double>::quiet_NaN());
     }
 #define SOPE_RAY_PLANE(C, R)                                                                 \
-  RayPlaneChunk<C, R>(m, pose, lens, planes, margin_grid, min_depth, max_depth, ray_x, ray_y, \
-                      columns ? coded_u : coded_v, w.predicted, &w, px, py, pz, ok, exact,   \
-                      w.landed_row)
+  RayPlaneChunk<C, R>(m, pose, lens, planes, margin_grid, plane_step, min_depth, max_depth,  \
+                      ray_x, ray_y, columns ? coded_u : coded_v, w.predicted, &w, px, py,    \
+                      pz, ok, exact, w.landed_row)
     if (columns) {
       if (rational) SOPE_RAY_PLANE(true, true);
       else SOPE_RAY_PLANE(true, false);

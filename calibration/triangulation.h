@@ -71,7 +71,8 @@ struct TriangulationRegion {
 //    as the normal n / n_dominant (two floats), also bilinearly interpolated.
 // Each point is then closed-form arithmetic in double (midpoint, the 3×3 normal equations
 // of the linear method, or ray–plane: the chord through the projector row (column) that
-// the same camera column's points of the two camera rows above predict — kept when the
+// the same camera column's points of the two camera rows above predict (with a mild lens
+// the plane table's plane there: see kPlaneTableMaxDeviationPx) — kept when the
 // point lands within 0.1 px of it, as ~95% do — else two plane-table steps, from the
 // projector's centre row and then from where that point lands, and the chord there), run
 // over the valid pixels of a row as branch-free loops the compiler vectorises. Coordinates
@@ -111,6 +112,17 @@ class Triangulator {
 
   // Half the span of the chord that linearises a curved light plane, projector pixels.
   static constexpr double kPlaneHalfSpanPx = 8.0;
+  // Ray–plane's predicted step takes the plane table's plane instead of building the chord
+  // from the ray grid when, over the table (measured at set-up), the two meet the
+  // projector ray at most this far apart along the coded axis: about the ray grid's own
+  // float rounding, a thousandth of a decoder's sub-pixel precision. Mild lenses (~2e-5 px)
+  // take it, a strongly distorted wide-angle projector (~3e-4 px) keeps the chords.
+  static constexpr double kPlaneTableMaxDeviationPx = 5e-5;
+  // The plane table's largest deviation from the chord, projector pixels (columns: x-coded
+  // maps; rows: y-coded).
+  double PlaneTableDeviation(bool columns) const {
+    return columns ? column_plane_deviation_px_ : row_plane_deviation_px_;
+  }
 
   // Working arrays of the fast path (defined in triangulation.cc).
   struct RowScratch;
@@ -143,6 +155,7 @@ class Triangulator {
   cv::Mat row_planes_;
   // The tables can be interpolated in (a projector of at least 2×2 pixels).
   bool fast_tables_ = false;
+  double column_plane_deviation_px_ = 0.0, row_plane_deviation_px_ = 0.0;
 };
 
 // One-shot convenience: Triangulator(calibration, options).Triangulate(map, white) (the

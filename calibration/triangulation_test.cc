@@ -1,6 +1,7 @@
 #include "calibration/triangulation.h"
 
 #include <cmath>
+#include <cstdio>
 #include <limits>
 
 #include <Eigen/Geometry>
@@ -466,6 +467,22 @@ TEST(FastTriangulation, RayTablesMatchPerPixelUndistortion) {
   }
   // Float rays (8 bytes per pixel): ~1e-7 relative.
   EXPECT_LT(max_error, 5e-6) << "metres";
+}
+
+// Ray–plane's predicted step takes the plane table's plane where it strays from the chord
+// by no more than the ray grid's own rounding: the mild test rig does (so the tests above
+// compare that path with the exact one), the wide-angle one keeps the chords.
+TEST(FastTriangulation, PlaneTablesStandInForChordsOnlyWithMildLenses) {
+  const Triangulator mild(TestRig(false, false));
+  const Triangulator wide(TestRig(false, true));
+  for (const bool columns : {true, false}) {
+    SCOPED_TRACE(::testing::Message() << "columns " << columns);
+    EXPECT_GT(mild.PlaneTableDeviation(columns), 0.0);
+    EXPECT_LE(mild.PlaneTableDeviation(columns), Triangulator::kPlaneTableMaxDeviationPx);
+    EXPECT_GT(wide.PlaneTableDeviation(columns), Triangulator::kPlaneTableMaxDeviationPx);
+    std::printf("plane table deviation (columns %d): mild %.3g px, wide %.3g px\n", columns,
+                mild.PlaneTableDeviation(columns), wide.PlaneTableDeviation(columns));
+  }
 }
 
 TEST(FastTriangulation, TablesAreCompact) {
