@@ -768,7 +768,7 @@ void ProjectorFrameRays(int n, const Pose& pose, const float* __restrict ray_x,
 // exact path (exact = 1).
 template <bool kColumns, bool kRational>
 void RayPlaneFromCentre(int n, const Pose& pose, const Lens& lens, const Grid& planes,
-                        const Grid& grid, double min_depth, double max_depth,
+                        const Grid& grid, bool plane_step, double min_depth, double max_depth,
                         const float* __restrict ray_x, const float* __restrict ray_y,
                         const float* __restrict coded, Triangulator::RowScratch* w,
                         float* __restrict out_x, float* __restrict out_y,
@@ -822,8 +822,12 @@ void RayPlaneFromCentre(int n, const Pose& pose, const Lens& lens, const Grid& p
     done[i] = d | (active & v & !moved);
     landed[i] = (active & v & moved) ? next[i] : landed[i];
   }
-  // Step 3: the chord through the row it stopped at.
-  ChordStep<kColumns, kRational>(n, pose, lens, grid, coded, landed, w, w->on_grid);
+  // Step 3: the chord through the row it stopped at (the plane table's plane there).
+  if (plane_step) {
+    PlaneStep<kColumns, kRational>(n, pose, lens, planes, coded, landed, w, w->on_grid);
+  } else {
+    ChordStep<kColumns, kRational>(n, pose, lens, grid, coded, landed, w, w->on_grid);
+  }
   for (int i = 0; i < n; ++i) {
     to_exact[i] = (to_exact[i] != 0) | ((good[i] != 0) & (w->on_grid[i] == 0));
   }
@@ -906,9 +910,9 @@ void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes
   }
   if (redo_count == 0) return;
   if (redo_count == n) {
-    RayPlaneFromCentre<kColumns, kRational>(n, pose, lens, planes, grid, min_depth, max_depth,
-                                            ray_x, ray_y, coded, w, out_x, out_y, out_z, ok,
-                                            exact, landed_row);
+    RayPlaneFromCentre<kColumns, kRational>(n, pose, lens, planes, grid, plane_step, min_depth,
+                                            max_depth, ray_x, ray_y, coded, w, out_x, out_y,
+                                            out_z, ok, exact, landed_row);
     return;
   }
   for (int j = 0; j < redo_count; ++j) {
@@ -917,8 +921,8 @@ void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes
     w->redo_ray_y[j] = ray_y[i];
     w->redo_coded[j] = coded[i];
   }
-  RayPlaneFromCentre<kColumns, kRational>(redo_count, pose, lens, planes, grid, min_depth,
-                                          max_depth, w->redo_ray_x, w->redo_ray_y,
+  RayPlaneFromCentre<kColumns, kRational>(redo_count, pose, lens, planes, grid, plane_step,
+                                          min_depth, max_depth, w->redo_ray_x, w->redo_ray_y,
                                           w->redo_coded, w, w->redo_x, w->redo_y, w->redo_z,
                                           w->redo_ok, w->redo_exact, w->redo_landed);
   for (int j = 0; j < redo_count; ++j) {
