@@ -71,14 +71,14 @@ struct TriangulationRegion {
 //    as the normal n / n_dominant (two floats), also bilinearly interpolated.
 // Each point is then closed-form arithmetic in double (midpoint, the 3×3 normal equations
 // of the linear method, or ray–plane: the chord through the projector row (column) that
-// the same camera column's points of the two camera rows above predict (with a mild lens
-// the plane table's plane there: see kPlaneTableMaxDeviationPx) — kept when the
+// the same camera column's points of the two camera rows above predict — kept when the
 // point lands within 0.1 px of it, as ~95% do — else two plane-table steps, from the
-// projector's centre row and then from where that point lands, and the chord there), run
-// over the valid pixels of a row as branch-free loops the compiler vectorises. Coordinates
-// outside the tables (and other rare cases) go through the exact per-point path, so
-// results are those of TriangulateExact within float rounding (calibration_test checks
-// 1e-6 m of depth).
+// projector's centre row and then from where that point lands, and the chord there; with
+// a mild lens the last step takes the plane table's plane instead of the chord, see
+// kPlaneTableMaxDeviationPx), run over the valid pixels of a row as branch-free loops the
+// compiler vectorises. Coordinates outside the tables (and other rare cases) go through the
+// exact per-point path, so results are those of TriangulateExact within float rounding
+// (calibration_test checks 1e-6 m of depth).
 class Triangulator {
  public:
   // Throws sope::Error on an invalid calibration or options.
@@ -112,11 +112,12 @@ class Triangulator {
 
   // Half the span of the chord that linearises a curved light plane, projector pixels.
   static constexpr double kPlaneHalfSpanPx = 8.0;
-  // Ray–plane's predicted step takes the plane table's plane instead of building the chord
-  // from the ray grid when, over the table (measured at set-up), the two meet the
-  // projector ray at most this far apart along the coded axis: about the ray grid's own
-  // float rounding, a thousandth of a decoder's sub-pixel precision. Mild lenses (~2e-5 px)
-  // take it, a strongly distorted wide-angle projector (~3e-4 px) keeps the chords.
+  // Ray–plane's last step (the predicted one, or the last of those from the centre) takes
+  // the plane table's plane instead of building the chord from the ray grid when, over the
+  // table (measured at set-up), the two meet the projector ray at most this far apart
+  // along the coded axis: about the ray grid's own float rounding, a thousandth of a
+  // decoder's sub-pixel precision. Mild lenses (~2e-5 px) take it, a strongly distorted
+  // wide-angle projector (~3e-4 px) keeps the chords.
   static constexpr double kPlaneTableMaxDeviationPx = 5e-5;
   // The plane table's largest deviation from the chord, projector pixels (columns: x-coded
   // maps; rows: y-coded).
