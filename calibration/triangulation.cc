@@ -130,6 +130,14 @@ cv::Mat UndistortedGrid(const CameraModel& model) {
   return UndistortedGrid(model, 0, 0, model.width, model.height);
 }
 
+// The light plane through the projector rays a = (x_a, y_a, 1) and b (n = a × b) as the
+// plane tables store it: (n_y, n_z) / n_x for a column's plane, (n_x, n_z) / n_y for a
+// row's.
+Eigen::Vector2d PlaneRatios(double xa, double ya, double xb, double yb, bool columns) {
+  const double nx = ya - yb, ny = xb - xa, nz = xa * yb - ya * xb;
+  return columns ? Eigen::Vector2d(ny / nx, nz / nx) : Eigen::Vector2d(nx / ny, nz / ny);
+}
+
 // Light planes of one projector axis from the ray grid `extended` (undistorted normalised
 // coordinates of the projector pixels shifted by `margin`, `margin` pixels beyond every
 // border): for columns, the chord through column c at rows r ± margin, n = a × b with
@@ -145,10 +153,8 @@ cv::Mat PlaneTable(const cv::Mat& extended, int margin, int width, int height, b
       for (int c = 0; c < width; ++c) {
         const cv::Vec2f a = columns ? above[c + margin] : above[c];
         const cv::Vec2f b = columns ? below[c + margin] : below[c + 2 * margin];
-        const double xa = a[0], ya = a[1], xb = b[0], yb = b[1];
-        const double nx = ya - yb, ny = xb - xa, nz = xa * yb - ya * xb;
-        out[c] = columns ? cv::Vec2f(static_cast<float>(ny / nx), static_cast<float>(nz / nx))
-                         : cv::Vec2f(static_cast<float>(nx / ny), static_cast<float>(nz / ny));
+        const Eigen::Vector2d plane = PlaneRatios(a[0], a[1], b[0], b[1], columns);
+        out[c] = cv::Vec2f(static_cast<float>(plane[0]), static_cast<float>(plane[1]));
       }
     }
   });
@@ -198,12 +204,11 @@ double PlaneTableDeviationPx(const cv::Mat& extended, const cv::Mat& planes, int
                                           : bilinear(extended, u, v + margin);
         const Eigen::Vector2d b = columns ? bilinear(extended, u + margin, v + 2 * margin)
                                           : bilinear(extended, u + 2 * margin, v + margin);
-        const double nx = a.y() - b.y(), ny = b.x() - a.x(), nz = a.x() * b.y() - a.y() * b.x();
+        const Eigen::Vector2d chord = PlaneRatios(a.x(), a.y(), b.x(), b.y(), columns);
         const Eigen::Vector2d table = bilinear(planes, u, v);
         // Columns: x = −(n_y·y + n_z) / n_x on the ray's y; rows: y = −(n_x·x + n_z) / n_y.
         const double deviation =
-            columns ? (ny / nx - table[0]) * ray.y() + (nz / nx - table[1])
-                    : (nx / ny - table[0]) * ray.x() + (nz / ny - table[1]);
+            (chord[0] - table[0]) * (columns ? ray.y() : ray.x()) + (chord[1] - table[1]);
         worst[k] = std::max(worst[k], std::abs(deviation) * focal);
       }
     }
@@ -743,6 +748,20 @@ void ChordStep(int n, const Pose& pose, const Lens& lens, const Grid& grid,
                                     w->numerator, w->denominator, w->next, w->valid);
 }
 
+// Ray–plane's last step (the predicted one, or the last from the centre): PlaneStep on the
+// plane table `planes` when `plane_step` (Triangulator::kPlaneTableMaxDeviationPx), else
+// ChordStep on the ray grid `grid`.
+template <bool kColumns, bool kRational>
+void LastStep(int n, const Pose& pose, const Lens& lens, const Grid& planes, const Grid& grid,
+              bool plane_step, const float* __restrict coded, const double* __restrict landed,
+              Triangulator::RowScratch* w) {
+  if (plane_step) {
+    PlaneStep<kColumns, kRational>(n, pose, lens, planes, coded, landed, w, w->on_grid);
+  } else {
+    ChordStep<kColumns, kRational>(n, pose, lens, grid, coded, landed, w, w->on_grid);
+  }
+}
+
 // The camera rays in the projector's frame, q = r·d_c, into w->q_x, q_y, q_z.
 void ProjectorFrameRays(int n, const Pose& pose, const float* __restrict ray_x,
                         const float* __restrict ray_y, Triangulator::RowScratch* w) {
@@ -823,11 +842,7 @@ void RayPlaneFromCentre(int n, const Pose& pose, const Lens& lens, const Grid& p
     landed[i] = (active & v & moved) ? next[i] : landed[i];
   }
   // Step 3: the chord through the row it stopped at (the plane table's plane there).
-  if (plane_step) {
-    PlaneStep<kColumns, kRational>(n, pose, lens, planes, coded, landed, w, w->on_grid);
-  } else {
-    ChordStep<kColumns, kRational>(n, pose, lens, grid, coded, landed, w, w->on_grid);
-  }
+  LastStep<kColumns, kRational>(n, pose, lens, planes, grid, plane_step, coded, landed, w);
   for (int i = 0; i < n; ++i) {
     to_exact[i] = (to_exact[i] != 0) | ((good[i] != 0) & (w->on_grid[i] == 0));
   }
@@ -874,11 +889,7 @@ void RayPlaneChunk(int n, const Pose& pose, const Lens& lens, const Grid& planes
   int redo_count = 0;
   if (predictions > 0) {
     ProjectorFrameRays(n, pose, ray_x, ray_y, w);
-    if (plane_step) {
-      PlaneStep<kColumns, kRational>(n, pose, lens, planes, coded, landed, w, w->on_grid);
-    } else {
-      ChordStep<kColumns, kRational>(n, pose, lens, grid, coded, landed, w, w->on_grid);
-    }
+    LastStep<kColumns, kRational>(n, pose, lens, planes, grid, plane_step, coded, landed, w);
     const double* __restrict num = w->numerator;
     const double* __restrict den = w->denominator;
     const double* __restrict next = w->next;
