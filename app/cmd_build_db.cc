@@ -2,6 +2,7 @@
 //               [--hash lsh|sh|mlh|bre|itq] [--bits B] [--preset sope|thesis]
 //               [--units auto|m|cm|mm|in|METRES]
 #include <map>
+#include <set>
 #include <string>
 
 #include <fmt/format.h>
@@ -32,9 +33,12 @@ int RunBuildDb(int argc, char** argv) {
                "whose size is implausible in metres (bounding-box diagonal outside "
                "[0.02, 0.75]) are scaled to a 0.25 m diagonal, unless --units gives the files' "
                "unit (e.g. mm for BOP models: the real objects' size). Unreadable meshes are "
-               "reported and skipped.",
+               "reported and skipped. A class folder holding a file named CATEGORY (as `sope "
+               "objects` writes) is a category of alike objects, whose unseen instances the "
+               "tabletop recogniser may take for the class; any other folder of several "
+               "models is a set of instances (see --categories).",
                "sope build-db"};
-  std::string models_dir, out, preset = "sope", units = "auto";
+  std::string models_dir, out, preset = "sope", units = "auto", categories = "auto";
   int threads = 0;
   cli::LoggingFlags logging;
   app.add_option("--models", models_dir, "Models directory")->required();
@@ -50,6 +54,12 @@ int RunBuildDb(int argc, char** argv) {
   const std::vector<cli::BoundFlag<DatabaseOptions>> bound =
       cli::AddOptionFlags(app, &given, DatabaseOptions::Fields());
   cli::AddMeshUnitFlag(app, &units);
+  app.add_option("--categories", categories,
+                 "Which classes are categories (alike objects: unseen instances recognised "
+                 "as the class): auto (the class folders holding a CATEGORY file), all, or "
+                 "none")
+      ->check(CLI::IsMember({"auto", "all", "none"}))
+      ->capture_default_str();
   app.add_option("--threads", threads, "Worker threads describing views (0 = all cores)")
       ->capture_default_str();
   logging.Add(app);
@@ -84,17 +94,25 @@ int RunBuildDb(int argc, char** argv) {
   DatabaseOptions options = ResolveDatabaseOptions(choices);
   options.size.mesh_unit = cli::ParseMeshUnit(units, "--units");
 
-  const std::vector<ModelSource> models = ListModels(models_dir);
+  std::vector<ModelSource> models = ListModels(models_dir);
+  if (categories != "auto") {
+    for (ModelSource& model : models) model.category = categories == "all";
+  }
   spdlog::info("{} meshes in {}; {} {} viewpoints each, {} {}-bit codes", models.size(),
                models_dir, options.views_per_model, ToString(options.layout),
                ToString(options.hash.method), options.hash.bits);
   // The classes (DIR/<class>/<model>; a flat file's class is its name), so that a folder
   // that groups unlike objects (a dataset's) is seen to make them one class.
   std::map<std::string, int> class_sizes;
-  for (const ModelSource& model : models) ++class_sizes[model.class_name];
+  std::set<std::string> category_names;
+  for (const ModelSource& model : models) {
+    ++class_sizes[model.class_name];
+    if (model.category) category_names.insert(model.class_name);
+  }
   std::string classes;
   for (const auto& [name, count] : class_sizes) {
-    classes += fmt::format("{}{} ({})", classes.empty() ? "" : ", ", name, count);
+    classes += fmt::format("{}{} ({}{})", classes.empty() ? "" : ", ", name, count,
+                           category_names.count(name) ? ", category" : "");
   }
   spdlog::info("{} classes: {}", class_sizes.size(), classes);
   BuildSummary summary;

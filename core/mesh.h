@@ -32,4 +32,11 @@ TriangleMesh ReadMesh(const std::string& path);
 // Writes PLY (binary) or OBJ by extension, atomically.
 void WriteMesh(const std::string& path, const TriangleMesh& mesh);
 
+// Models directories (DIR/<class>/<model>.obj, DESIGN.md "Database"): a class directory
+// holding a file of this name (any content) is a category, a folder of alike objects
+// (different mugs) whose unseen instances the tabletop recogniser may take for the class.
+// Without it a folder of several models is a set of instances (a dataset's unlike
+// objects: only the models themselves are recognised). `sope objects` writes it.
+inline constexpr const char* kCategoryMarker = "CATEGORY";
+
 }  // namespace sope

@@ -344,6 +344,12 @@ void DatabaseData::Check() const {
              codes.bits, num_views, hasher.bits());
   SOPE_CHECK(view_clouds.size() == num_views, "database: {} view clouds for {} views",
              view_clouds.size(), num_views);
+  for (size_t k = 0; k < categories.size(); ++k) {
+    SOPE_CHECK(std::count(classes.begin(), classes.end(), categories[k]) == 1 &&
+                   std::count(categories.begin(), categories.end(), categories[k]) == 1,
+               "database: category {} is not one class of the database (or named twice)",
+               categories[k]);
+  }
   int expected_first = 0;
   for (size_t m = 0; m < models.size(); ++m) {
     const ModelRecord& model = models[m];
@@ -386,6 +392,7 @@ std::string MetadataSection(const DatabaseData& data) {
   meta["version"] = kDatabaseFormatVersion;
   meta["options"] = OptionsToJsonObject(data.options);
   meta["classes"] = data.classes;
+  meta["categories"] = data.categories;
   json models = json::array();
   for (const ModelRecord& m : data.models) {
     models.push_back({{"name", m.name},
@@ -547,6 +554,7 @@ struct Database::Impl {
   MappedFile file;
   DatabaseOptions options;
   std::vector<std::string> classes;
+  std::vector<uint8_t> category;  // per class: a category (DatabaseData::categories)
   std::vector<ModelRecord> models;
   std::vector<ViewRecord> views;
   DistanceScales distance_scales;
@@ -766,6 +774,17 @@ int ReadMetadata(const Sections& sections, const std::string& path, DatabaseImpl
     *stored_options = meta.at("options");
     impl->options = OptionsFromJsonObject(*stored_options);
     impl->classes = meta.at("classes").get<std::vector<std::string>>();
+    impl->category.assign(impl->classes.size(), 1);  // older files: every class
+    if (meta.contains("categories")) {
+      std::fill(impl->category.begin(), impl->category.end(), 0);
+      for (const std::string& name : meta.at("categories").get<std::vector<std::string>>()) {
+        const auto it = std::find(impl->classes.begin(), impl->classes.end(), name);
+        SOPE_CHECK(it != impl->classes.end(),
+                   "database {} is corrupted: category {} is not one of its classes", path,
+                   name);
+        impl->category[it - impl->classes.begin()] = 1;
+      }
+    }
     for (const json& m : meta.at("models")) {
       ModelRecord model;
       model.name = m.at("name").get<std::string>();
@@ -919,6 +938,10 @@ const std::string& Database::path() const { return impl_->path; }
 uint64_t Database::file_size() const { return impl_->file.size; }
 const DatabaseOptions& Database::options() const { return impl_->options; }
 const std::vector<std::string>& Database::classes() const { return impl_->classes; }
+bool Database::IsCategory(int class_index) const {
+  return class_index >= 0 && class_index < static_cast<int>(impl_->category.size()) &&
+         impl_->category[class_index] != 0;
+}
 const std::vector<ModelRecord>& Database::models() const { return impl_->models; }
 const std::vector<ViewRecord>& Database::views() const { return impl_->views; }
 const DistanceScales& Database::distance_scales() const { return impl_->distance_scales; }

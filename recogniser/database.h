@@ -14,7 +14,8 @@
 //                      CRC-32C u32 · reserved u32
 //   sections           each at a 4096-byte (page) aligned offset, zero padding between:
 //     metadata  JSON: format, build options (viewpoints, rendering, size normalisation,
-//               pre-processing, features, hashing), classes, models, coarse layout, sizes
+//               pre-processing, features, hashing), classes, categories (optional: absent
+//               = every class), models, coarse layout, sizes
 //     views     one 152-byte record per view (ViewRecord, see ViewRecordOnDisk in the .cc)
 //     hasher    Hasher::Serialize()
 //     standard  coarse-feature standardisation: mean, scale (float32 × coarse_dim each),
@@ -168,6 +169,11 @@ struct DatabaseData {
   using RowMatrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   DatabaseOptions options;
   std::vector<std::string> classes;
+  // The classes that are categories: folders of alike objects (DIR/<class>/CATEGORY, as
+  // `sope objects` writes), whose unseen instances the tabletop recogniser may accept at
+  // class level. A class of a dataset's unlike objects is not one. A subset of `classes`,
+  // in their order.
+  std::vector<std::string> categories;
   std::vector<ModelRecord> models;
   std::vector<ViewRecord> views;
   // Coarse standardisation: standardised = (coarse − mean) / scale, per dimension.
@@ -221,6 +227,9 @@ class Database {
   uint64_t file_size() const;
   const DatabaseOptions& options() const;
   const std::vector<std::string>& classes() const;
+  // Whether class `class_index` is a category (DatabaseData::categories). A file written
+  // before categories were recorded has every class a category (as it was recognised).
+  bool IsCategory(int class_index) const;
   const std::vector<ModelRecord>& models() const;
   const std::vector<ViewRecord>& views() const;
   int num_models() const { return static_cast<int>(models().size()); }

@@ -377,6 +377,41 @@ std::string WithMetadata(const std::string& bytes,
   return out;
 }
 
+// Categories (DatabaseData::categories) survive the file; a file without the key (written
+// before categories were recorded) has every class a category, as it was recognised; a
+// category that is no class is refused.
+TEST(Database, CategoriesRoundTripAndOlderFilesHaveEveryClassOne) {
+  testing::ScratchDir scratch;
+  DatabaseData data = MakeSyntheticData(2);
+  ASSERT_EQ(data.classes.size(), 2u);
+  data.categories = {data.classes[1]};
+  const std::string path = scratch.File("db.sopedb");
+  WriteDatabase(path, data);
+  const std::unique_ptr<Database> db = Database::Open(path);
+  EXPECT_FALSE(db->IsCategory(0));
+  EXPECT_TRUE(db->IsCategory(1));
+  EXPECT_FALSE(db->IsCategory(2));  // no such class
+  EXPECT_FALSE(db->IsCategory(-1));
+
+  const std::string bytes = ReadBytes(path);
+  WriteBytes(scratch.File("older.sopedb"),
+             WithMetadata(bytes, [](nlohmann::json* m) { m->erase("categories"); }));
+  const std::unique_ptr<Database> older = Database::Open(scratch.File("older.sopedb"));
+  EXPECT_TRUE(older->IsCategory(0));
+  EXPECT_TRUE(older->IsCategory(1));
+
+  WriteBytes(scratch.File("crafted.sopedb"), WithMetadata(bytes, [](nlohmann::json* m) {
+               (*m)["categories"] = {"no such class"};
+             }));
+  const std::string error = OpenError(scratch.File("crafted.sopedb"));
+  EXPECT_NE(error.find("corrupted"), std::string::npos) << error;
+  EXPECT_NE(error.find("category no such class"), std::string::npos) << error;
+
+  data.categories = {"no such class"};
+  EXPECT_THROW_WITH_MESSAGE(WriteDatabase(scratch.File("bad.sopedb"), data), Error,
+                            "category no such class");
+}
+
 TEST(Database, RefusesCraftedContentsWithValidChecksums) {
   testing::ScratchDir scratch;
   const std::string path = scratch.File("db.sopedb");

@@ -365,6 +365,19 @@ std::vector<int> ModelsOfClass(const Database& database, int class_index) {
   return models;
 }
 
+// Whether a cluster may be taken for an unseen instance of class `class_index` (its
+// size looks, class-level acceptance): the class is a category (Database::IsCategory), or
+// its one model is the class (an instance database's class: a looser look at that model).
+// A folder of several unlike models (a dataset's) is not: a stone is no unseen "ycb".
+bool ClassLevelAllowed(const Database& database, int class_index) {
+  if (database.IsCategory(class_index)) return true;
+  int models = 0;
+  for (int m = 0; m < database.num_models() && models < 2; ++m) {
+    models += database.model(m).class_index == class_index;
+  }
+  return models == 1;
+}
+
 // `recognition` with its best posed suggestion of class `class_index` first, as a
 // hypothesis of `cluster`; nullopt when it posed none of that class.
 std::optional<Hypothesis> ClassSource(const RecognitionResult& recognition, int cluster,
@@ -388,7 +401,8 @@ std::optional<Hypothesis> FirstClassSource(const SceneContext& ctx,
                                            const RecognitionResult& recognition, int cluster,
                                            std::vector<int>* class_models) {
   if (recognition.classes.empty() ||
-      recognition.classes.front().probability < ctx.options.verification.min_class_probability) {
+      recognition.classes.front().probability < ctx.options.verification.min_class_probability ||
+      !ClassLevelAllowed(ctx.database, recognition.classes.front().class_index)) {
     return std::nullopt;
   }
   const int first_class = recognition.classes.front().class_index;
@@ -1895,7 +1909,9 @@ bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvi
     const PointCloud& points = c.clusters[cluster].cloud;
     std::vector<Hypothesis> bodies{*source};
     HypothesisPool siblings;
-    AddSiblingsOf(c, *source, class_models, points, query_of, &siblings);
+    // Siblings and the scaled look only for a class an unseen instance may be taken for.
+    const bool class_level = ClassLevelAllowed(c.database, class_score.class_index);
+    if (class_level) AddSiblingsOf(c, *source, class_models, points, query_of, &siblings);
     for (Hypothesis& sibling : siblings.hypotheses) bodies.push_back(std::move(sibling));
     looks->recognise_ms += siblings.recognise_ms;
     // The source's turns are in the pool already when its class is that probable
@@ -1942,7 +1958,9 @@ bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvi
       return;
     }
     const Hypothesis scale_source = *best;
-    AddScaledHypothesis(c, scale_source, class_models.size(), points, query_of, looks);
+    if (class_level) {
+      AddScaledHypothesis(c, scale_source, class_models.size(), points, query_of, looks);
+    }
   };
   const size_t begin = pool->hypotheses.size();
   const std::vector<size_t> added = LooksSideBySide(
@@ -1996,6 +2014,10 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
   const SceneRecognitionOptions& options = ctx.options;
   const TablePlane& plane = ctx.plane;
   const Stopwatch watch;
+  std::vector<uint8_t> class_level_allowed(ctx.database.classes().size());
+  for (size_t c = 0; c < class_level_allowed.size(); ++c) {
+    class_level_allowed[c] = ClassLevelAllowed(ctx.database, static_cast<int>(c));
+  }
   std::vector<SceneHypothesis> scene_hypotheses;
   for (const Hypothesis& h : pool->hypotheses) {
     const Suggestion& s = h.recognition.suggestions[0];
@@ -2012,7 +2034,8 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
         options.class_weight * (1.0 - ClassProbability(h.recognition, s.class_index));
     const std::vector<ClassScore>& classes = h.recognition.classes;
     const double class_probability =
-        !classes.empty() && classes.front().class_index == s.class_index
+        !classes.empty() && classes.front().class_index == s.class_index &&
+                class_level_allowed[s.class_index]
             ? classes.front().probability
             : 0.0;
     scene_hypotheses.push_back(

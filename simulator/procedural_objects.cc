@@ -715,6 +715,7 @@ bool IsProceduralModelsDirectory(const std::string& dir) {
     }
     for (const fs::directory_entry& file : fs::directory_iterator(entry.path(), error)) {
       const std::string stem = file.path().stem().string();
+      if (file.is_regular_file() && file.path().filename() == kCategoryMarker) continue;
       if (!file.is_regular_file() || file.path().extension() != ".obj" ||
           stem.rfind(name + "_", 0) != 0 || stem.size() == name.size() + 1 ||
           stem.find_first_not_of("0123456789", name.size() + 1) != std::string::npos) {
@@ -745,6 +746,13 @@ std::vector<std::string> WriteModelFiles(const std::string& dir, const std::vect
     const std::string file = JoinPath(name, fmt::format("{}_{}.obj", name, f.index));
     WriteMesh(JoinPath(staged.path(), file), MakeObject(f.object_class, f.seed, options));
     paths.push_back(JoinPath(dir, file));
+    // Each class's instances are alike objects: a category (kCategoryMarker).
+    const std::string marker = JoinPath(JoinPath(staged.path(), name), kCategoryMarker);
+    if (!std::filesystem::exists(marker)) {
+      WriteFileAtomic(marker, fmt::format("{}: procedural instances of one class (sope "
+                                          "objects); unseen instances are recognised as {}\n",
+                                          name, name));
+    }
   }
   staged.Commit();
   return paths;

@@ -128,10 +128,12 @@ TriangleMesh MakeObject(ObjectClass cls, uint64_t seed,
 // Writes a models directory for `sope build-db --models DIR` (DESIGN.md):
 // `dir/<class>/<class>_<k>.obj` for every class and k = 0 … instances_per_class − 1, where
 // model k is MakeObject(cls, seed + k) — so directories written with seeds s and
-// s' ≥ s + instances_per_class hold disjoint instances (training vs unseen test objects).
+// s' ≥ s + instances_per_class hold disjoint instances (training vs unseen test objects) —
+// and `dir/<class>/CATEGORY` (kCategoryMarker, core/mesh.h: each class is a category).
 // The directory is written as a whole (StagedDirectory): a full disk or a signal leaves
 // nothing partial. An existing `dir` is replaced only when empty or itself a procedural
-// models directory (only <class>/<class>_<k>.obj files); anything else is refused, so no
+// models directory (only <class>/<class>_<k>.obj and CATEGORY files); anything else is
+// refused, so no
 // file sope did not write is deleted. Returns the paths written. Throws sope::Error unless
 // 1 ≤ instances_per_class ≤ kMaxInstancesPerClass and `dir` is non-empty, or when a file
 // cannot be written.

@@ -554,12 +554,19 @@ TEST(WriteProceduralModels, WritesTheModelsTreeReadableBack) {
       EXPECT_TRUE(read.vertices == made.vertices);  // OBJ floats round-trip exactly
     }
   }
-  // Only the class folders, no temporary files left behind.
+  // Only the class folders, each a category (kCategoryMarker), no temporary files left
+  // behind.
   int entries = 0;
   for (const auto& entry : std::filesystem::recursive_directory_iterator(dir)) {
     entries += entry.is_regular_file() ? 1 : 0;
   }
-  EXPECT_EQ(entries, static_cast<int>(paths.size()));
+  for (ObjectClass cls : AllObjectClasses()) {
+    EXPECT_TRUE(std::filesystem::is_regular_file(dir + "/" + ToString(cls) + "/" +
+                                                 kCategoryMarker));
+  }
+  EXPECT_EQ(entries, static_cast<int>(paths.size() + AllObjectClasses().size()));
+  // A procedural models directory (its markers included) is replaced when written again.
+  EXPECT_EQ(WriteProceduralModels(dir, 1, 40).size(), AllObjectClasses().size());
   EXPECT_THROW_WITH_MESSAGE(WriteProceduralModels(dir, 0, 0), Error, "instances per class",
                             "got 0");
   EXPECT_THROW_WITH_MESSAGE(WriteProceduralModels("", 1, 0), Error, "empty directory name");

@@ -15,6 +15,7 @@
 
 #include "core/camera_model.h"
 #include "core/file_util.h"
+#include "core/mesh.h"
 #include "core/point_cloud.h"
 #include "recogniser/database.h"
 #include "recogniser/viewpoints.h"
@@ -331,6 +332,36 @@ TEST_F(RecogniseCli, BuildDbTakesTheMeshesUnit) {
       EXPECT_EQ(db->options().size.mesh_unit, 0.001);
     }
   }
+}
+
+// build-db --categories: by default a class folder holding a CATEGORY file is a category
+// (alike objects: unseen instances recognised as the class) and any other is not; all and
+// none override the files; the log names them; an unknown value is one error line.
+TEST_F(RecogniseCli, BuildDbRecordsWhichClassesAreCategories) {
+  const std::string models = local_.File("category_models");
+  WriteMesh(models + "/mug/mug_a.obj", MakeObject(ObjectClass::kMug, 1));
+  WriteMesh(models + "/mug/mug_b.obj", MakeObject(ObjectClass::kMug, 2));
+  WriteFileAtomic(models + "/mug/" + kCategoryMarker, "");
+  WriteMesh(models + "/dataset/bottle.obj", MakeObject(ObjectClass::kBottle, 1));
+  WriteMesh(models + "/dataset/bowl.obj", MakeObject(ObjectClass::kBowl, 1));
+  for (const std::string choice : {"", "auto", "all", "none"}) {
+    SCOPED_TRACE(choice);
+    const SopeRun run = Sope("build-db --views 6 --models " + models + " --out " +
+                                 local_.File("categories.sopedb") +
+                                 (choice.empty() ? "" : " --categories " + choice),
+                             local_);
+    ASSERT_EQ(run.exit_code, 0) << run.err;
+    const std::unique_ptr<Database> db = Database::Open(local_.File("categories.sopedb"));
+    ASSERT_EQ(db->classes(), (std::vector<std::string>{"dataset", "mug"}));
+    const bool all = choice == "all", none = choice == "none";
+    EXPECT_EQ(db->IsCategory(0), all);
+    EXPECT_EQ(db->IsCategory(1), !none);
+    EXPECT_EQ(run.err.find("mug (2, category)") != std::string::npos, !none) << run.err;
+  }
+  ExpectOneLineError(Sope("build-db --categories some --models " + models + " --out " +
+                              local_.File("categories.sopedb"),
+                          local_),
+                     "build-db", "--categories");
 }
 
 }  // namespace

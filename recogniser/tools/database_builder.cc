@@ -48,6 +48,7 @@ bool IsMeshExtension(const std::string& path) {
 struct LoadedModel {
   TriangleMesh mesh;
   ModelRecord record;
+  bool category = false;  // ModelSource::category
 };
 
 std::optional<LoadedModel> LoadModel(const ModelSource& source,
@@ -69,6 +70,7 @@ std::optional<LoadedModel> LoadModel(const ModelSource& source,
   record.name = source.name;
   record.class_name = source.class_name;
   record.source_path = source.path;
+  model.category = source.category;
   record.scale = SizeNormalisationScale(model.mesh, size);
   if (size.mesh_unit > 0.0 && !IsPlausibleDiagonal(diagonal * record.scale)) {
     spdlog::warn("{}: {:.4g} m across at {} m per mesh unit, not {}-{} m: is the unit right?",
@@ -302,23 +304,25 @@ std::vector<ModelSource> ListModels(const std::string& models_dir) {
   SOPE_CHECK(fs::is_directory(models_dir, error), "models directory {} does not exist or is not "
              "a directory", models_dir);
   std::vector<ModelSource> models;
-  auto add = [&](const fs::path& path, const std::string& class_name) {
+  auto add = [&](const fs::path& path, const std::string& class_name, bool category) {
     ModelSource source;
     source.path = path.string();
     source.name = path.stem().string();
     source.class_name = class_name.empty() ? source.name : class_name;
+    source.category = category;
     models.push_back(std::move(source));
   };
   try {
     for (const fs::directory_entry& entry : fs::directory_iterator(models_dir)) {
       if (entry.is_directory()) {
+        const bool category = fs::is_regular_file(entry.path() / kCategoryMarker);
         for (const fs::directory_entry& inner : fs::directory_iterator(entry.path())) {
           if (inner.is_regular_file() && IsMeshExtension(inner.path().string())) {
-            add(inner.path(), entry.path().filename().string());
+            add(inner.path(), entry.path().filename().string(), category);
           }
         }
       } else if (entry.is_regular_file() && IsMeshExtension(entry.path().string())) {
-        add(entry.path(), "");
+        add(entry.path(), "", false);
       }
     }
   } catch (const fs::filesystem_error& e) {
@@ -491,6 +495,11 @@ std::vector<int> AssembleViews(const DescribedViews& described, DatabaseData* da
       it = data->classes.end() - 1;
     }
     record.class_index = static_cast<int>(it - data->classes.begin());
+    if (described.loaded[m].category &&
+        std::find(data->categories.begin(), data->categories.end(), record.class_name) ==
+            data->categories.end()) {
+      data->categories.push_back(record.class_name);
+    }
     record.first_view = first;
     record.num_views = views;
     data->models.push_back(record);

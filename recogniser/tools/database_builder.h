@@ -23,10 +23,14 @@ struct ModelSource {
   std::string path;        // mesh file
   std::string name;        // file stem
   std::string class_name;  // its directory, or `name` for a file directly in DIR
+  // Its class is a category (DatabaseData::categories): the class directory holds a file
+  // named kCategoryMarker.
+  bool category = false;
 };
 
-// The meshes of a models directory, sorted by class then name. Throws sope::Error when
-// `models_dir` is not a readable directory or holds no mesh file.
+// The meshes of a models directory, sorted by class then name, with their class's
+// category flag. Throws sope::Error when `models_dir` is not a readable directory or holds
+// no mesh file.
 std::vector<ModelSource> ListModels(const std::string& models_dir);
 
 // The scale SizeNormalisationOptions gives a mesh: mesh_unit when given, else 1 when its

@@ -32,6 +32,7 @@ TEST(ListModels, ClassDirectoriesAndFlatFiles) {
   WriteFileAtomic(dir + "/mug/b.obj", box);
   WriteFileAtomic(dir + "/mug/a.PLY", box);  // extension case-insensitive
   WriteFileAtomic(dir + "/mug/notes.txt", "not a mesh");
+  WriteFileAtomic(dir + "/mug/CATEGORY", "");  // kCategoryMarker: mug is a category
   WriteFileAtomic(dir + "/bowl/deep/c.obj", box);  // deeper levels are ignored
   WriteFileAtomic(dir + "/teapot.off", box);
   const std::vector<ModelSource> models = ListModels(dir);
@@ -40,8 +41,10 @@ TEST(ListModels, ClassDirectoriesAndFlatFiles) {
   EXPECT_EQ(models[0].name, "a");
   EXPECT_EQ(models[1].class_name, "mug");
   EXPECT_EQ(models[1].name, "b");
+  EXPECT_TRUE(models[0].category && models[1].category);
   EXPECT_EQ(models[2].class_name, "teapot");  // a flat file is its own class
   EXPECT_EQ(models[2].name, "teapot");
+  EXPECT_FALSE(models[2].category);
   EXPECT_EQ(fs::path(models[2].path).filename(), "teapot.off");
 
   fs::create_directories(scratch.File("empty"));
@@ -136,6 +139,8 @@ TEST_F(BuildDatabaseTest, SkipsBadMeshesAndStoresConsistentViews) {
   EXPECT_NE(summary.skipped[0].find("broken.obj"), std::string::npos);
   ASSERT_EQ(data.models.size(), 2u);
   EXPECT_EQ(data.classes, (std::vector<std::string>{"box", "mug"}));
+  // WriteProceduralModels marks its classes as categories.
+  EXPECT_EQ(data.categories, (std::vector<std::string>{"box", "mug"}));
   EXPECT_EQ(data.views.size(), 24u);
   EXPECT_EQ(summary.views, 24);
   data.Check();
