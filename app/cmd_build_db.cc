@@ -12,6 +12,7 @@
 #include "app/commands.h"
 #include "app/option_flags.h"
 #include "core/error.h"
+#include "core/mesh.h"
 #include "recogniser/database.h"
 #include "recogniser/tools/database_builder.h"
 
@@ -115,6 +116,18 @@ int RunBuildDb(int argc, char** argv) {
                            category_names.count(name) ? ", category" : "");
   }
   spdlog::info("{} classes: {}", class_sizes.size(), classes);
+  std::string instance_sets;
+  for (const auto& [name, count] : class_sizes) {
+    if (count >= 2 && category_names.count(name) == 0) {
+      instance_sets += fmt::format("{}{}", instance_sets.empty() ? "" : ", ", name);
+    }
+  }
+  if (!instance_sets.empty()) {
+    spdlog::info("{}: sets of instances (only their models are recognised); a folder of alike "
+                 "objects whose unseen instances should be recognised as the class needs a "
+                 "file named {} (or --categories all)",
+                 instance_sets, kCategoryMarker);
+  }
   BuildSummary summary;
   DatabaseData data;
   {

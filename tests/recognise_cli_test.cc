@@ -357,6 +357,10 @@ TEST_F(RecogniseCli, BuildDbRecordsWhichClassesAreCategories) {
     EXPECT_EQ(db->IsCategory(0), all);
     EXPECT_EQ(db->IsCategory(1), !none);
     EXPECT_EQ(run.err.find("mug (2, category)") != std::string::npos, !none) << run.err;
+    // A folder of several models that is not a category is named as a set of instances.
+    const std::string sets =
+        none ? "dataset, mug: sets of instances" : "dataset: sets of instances";
+    EXPECT_EQ(run.err.find(sets) != std::string::npos, !all) << run.err;
   }
   ExpectOneLineError(Sope("build-db --categories some --models " + models + " --out " +
                               local_.File("categories.sopedb"),
