@@ -94,6 +94,8 @@ TEST(DefaultDatabase, IsBuiltOnceWithItsMeshesInTheFinalPlace) {
   const std::unique_ptr<Database> db = Database::Open(db_path);
   ASSERT_EQ(db->num_models(), 1);
   EXPECT_EQ(db->model(0).class_name, "mug");
+  // Procedural classes are categories: unseen instances are recognised as the class.
+  EXPECT_TRUE(db->IsCategory(0));
   // The database names its meshes where they stay (the overlay draws them), not in the
   // staging directory it was built in.
   EXPECT_EQ(db->model(0).source_path.rfind(directory + "/models/", 0), 0u)
