@@ -167,8 +167,10 @@ int RunObjects(int argc, char** argv) {
   CLI::App app{
       "Write procedural household objects (mug, bottle, bowl, box, can, glass, plate, "
       "vase, wine glass, saucepan) as a models directory for sope build-db / sope "
-      "eval: DIR/<class>/<class>_<k>.obj, instance k drawn from seed S + k. Seeds S "
-      "and S' >= S + N give disjoint instances (training vs held-out). With "
+      "eval: DIR/<class>/<class>_<k>.obj, instance k drawn from seed S + k, and "
+      "DIR/<class>/CATEGORY (each class is a category: sope build-db records it, and "
+      "unseen instances are recognised as the class). Seeds S and S' >= S + N give "
+      "disjoint instances (training vs held-out). With "
       "--contact-sheet, also (or instead) render the same instances into PNG contact "
       "sheets to look at.",
       "sope objects"};
