@@ -2279,6 +2279,10 @@ std::string RejectionReason(const HypothesisEvidence& e, const SceneVerification
                     options.max_violation_fraction));
   }
   if (!why.empty()) why += " (instance level)";
+  if (why.empty() && e.visible_fraction < options.min_visible_fraction) {
+    add(fmt::format("visible fraction {:.2f} < {:.2f}", e.visible_fraction,
+                    options.min_visible_fraction));
+  }
   if (why.empty() && e.overlapping) add("its model fills the space of an accepted object's");
   if (why.empty()) add("gain (points another hypothesis explains, violations, stability)");
   return why;

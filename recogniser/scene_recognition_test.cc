@@ -1271,6 +1271,37 @@ TEST(SceneVerification, PointsAnAcceptedHypothesisExplainsNoLongerCountAgainstAn
       [&] { VerifyHypotheses(scene, scene, first, options, {}, &cache); }, {"cache holds 2"});
 }
 
+// A hypothesis almost wholly hidden (SceneVerificationOptions::min_visible_fraction): a
+// 12 cm square model 0.6 m away behind an 8 cm square 0.4 m away, of which only a 1 cm
+// patch beside the occluder's shadow is seen. Its fit and explained fraction count only
+// what is not occluded or on an empty ray, so it passes them on its 36 points (fit and
+// local explained 1, no violation); only 1% of its camera-facing surface is seen, below
+// the 5% a detection must show: rejected, and the reason says so. With the rule off it
+// is accepted.
+TEST(SceneVerification, AHypothesisAlmostWhollyHiddenIsRejected) {
+  PointCloud scene = Square(0.0f, 0.4f, 0.08f);
+  const PointCloud patch = Square(0.075f, 0.6f, 0.01f);
+  scene.points.insert(scene.points.end(), patch.points.begin(), patch.points.end());
+  const PointCloud model = Square(0.02f, 0.6f, 0.12f);
+  const std::vector<SceneHypothesis> hypotheses = {{&model, Rigid3d(), 0.0, 0.0}};
+  SceneVerificationOptions options;
+  const std::vector<HypothesisEvidence> evidence =
+      VerifyHypotheses(scene, scene, hypotheses, options);
+  ASSERT_EQ(evidence.size(), 1u);
+  const HypothesisEvidence& e = evidence[0];
+  std::printf("fit %.2f, local %.2f, violations %.2f, visible fraction %.3f, %s\n",
+              e.model_fit, e.local_explained, e.violation_fraction, e.visible_fraction,
+              RejectionReason(e, options).c_str());
+  EXPECT_GE(e.model_fit, options.min_model_fit);
+  EXPECT_GE(e.local_explained, options.min_local_explained);
+  EXPECT_LE(e.violation_fraction, options.max_violation_fraction);
+  EXPECT_LT(e.visible_fraction, 0.02);
+  EXPECT_FALSE(e.passes || e.accepted);
+  EXPECT_NE(RejectionReason(e, options).find("visible fraction"), std::string::npos);
+  options.min_visible_fraction = 0.0;
+  EXPECT_TRUE(VerifyHypotheses(scene, scene, hypotheses, options)[0].accepted);
+}
+
 // The surface of a cube `size` metres wide centred at (x, 0, z), sampled every 2 mm,
 // outward normals.
 PointCloud Cube(float x, float z, float size) {

@@ -217,7 +217,7 @@ void Judge(const LevelExplanations& levels, const SceneVerificationOptions& opti
       UseExplanation(levels.class_level, levels.class_fit, class_local, true, e);
     }
   }
-  e->passes = instance || e->class_level;
+  e->passes = (instance || e->class_level) && e->visible_fraction >= options.min_visible_fraction;
 }
 
 // The evidence for one hypothesis, at instance level and, failing that, at class level;
@@ -468,7 +468,8 @@ void SceneVerificationOptions::Check() const {
   for (const double fraction :
        {min_model_fit, min_local_explained, max_violation_fraction, min_gain_fraction,
         min_class_probability, class_min_model_fit, class_min_local_explained,
-        class_max_violation_fraction, scaled_min_model_fit, max_mutual_overlap}) {
+        class_max_violation_fraction, scaled_min_model_fit, max_mutual_overlap,
+        min_visible_fraction}) {
     SOPE_CHECK(fraction >= 0.0 && fraction <= 1.0,
                "scene verification: fractions must lie in [0, 1], got {}", fraction);
   }
