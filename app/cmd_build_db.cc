@@ -110,18 +110,18 @@ int RunBuildDb(int argc, char** argv) {
     ++class_sizes[model.class_name];
     if (model.category) category_names.insert(model.class_name);
   }
-  std::string classes;
+  // Each class with its size and whether it is a category; the folders of several models
+  // that are not (sets of instances) named once more below.
+  std::string classes, instance_sets;
   for (const auto& [name, count] : class_sizes) {
+    const bool category = category_names.count(name) != 0;
     classes += fmt::format("{}{} ({}{})", classes.empty() ? "" : ", ", name, count,
-                           category_names.count(name) ? ", category" : "");
-  }
-  spdlog::info("{} classes: {}", class_sizes.size(), classes);
-  std::string instance_sets;
-  for (const auto& [name, count] : class_sizes) {
-    if (count >= 2 && category_names.count(name) == 0) {
+                           category ? ", category" : "");
+    if (count >= 2 && !category) {
       instance_sets += fmt::format("{}{}", instance_sets.empty() ? "" : ", ", name);
     }
   }
+  spdlog::info("{} classes: {}", class_sizes.size(), classes);
   if (!instance_sets.empty()) {
     spdlog::info("{}: sets of instances (only their models are recognised); a folder of alike "
                  "objects whose unseen instances should be recognised as the class needs a "

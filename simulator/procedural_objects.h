@@ -133,10 +133,9 @@ TriangleMesh MakeObject(ObjectClass cls, uint64_t seed,
 // The directory is written as a whole (StagedDirectory): a full disk or a signal leaves
 // nothing partial. An existing `dir` is replaced only when empty or itself a procedural
 // models directory (only <class>/<class>_<k>.obj and CATEGORY files); anything else is
-// refused, so no
-// file sope did not write is deleted. Returns the paths written. Throws sope::Error unless
-// 1 ≤ instances_per_class ≤ kMaxInstancesPerClass and `dir` is non-empty, or when a file
-// cannot be written.
+// refused, so no file sope did not write is deleted. Returns the paths written. Throws
+// sope::Error unless 1 ≤ instances_per_class ≤ kMaxInstancesPerClass and `dir` is
+// non-empty, or when a file cannot be written.
 constexpr int kMaxInstancesPerClass = 1000;
 std::vector<std::string> WriteProceduralModels(const std::string& dir, int instances_per_class,
                                                uint64_t seed,
