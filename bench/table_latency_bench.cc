@@ -30,6 +30,7 @@
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -135,12 +136,13 @@ double ThreadCpuMs() {
   return 1e3 * static_cast<double>(t.tv_sec) + 1e-6 * static_cast<double>(t.tv_nsec);
 }
 
-// The tabletop path with the given clustering of the table segmentation (rolled
-// hypotheses: `roll_steps`, < 0 the default), on `threads` cores (OpenCV's pool, the
+// The tabletop path with the given clustering of the table segmentation (`adjust`, when
+// given, changes the scene recognition's options: a peer), on `threads` cores (OpenCV's pool, the
 // decoder, the triangulation and the pose stages; the CPU-time counters then count the
 // calling thread only: read the wall-clock ones).
 void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clustering,
-              std::vector<double>* totals_out, bool second_looks = true, int roll_steps = -1,
+              std::vector<double>* totals_out, bool second_looks = true,
+              const std::function<void(SceneRecognitionOptions*)>& adjust = {},
               const DecoderOptions& decoder_options = ScanOptions().decoder,
               bool table_scan = true, bool live = false, int threads = 1) {
   const Input& input = GetInput();
@@ -156,7 +158,7 @@ void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clus
   // warm-up's own time is a counter.
   {
     SceneRecognitionOptions options;
-    if (roll_steps >= 0) options.roll_steps = roll_steps;
+    if (adjust) adjust(&options);
     const double cpu_start = ThreadCpuMs();
     recogniser.WarmUp(options);
     state.counters["warm_up_cpu_ms"] = ThreadCpuMs() - cpu_start;
@@ -192,7 +194,7 @@ void RunTable(benchmark::State& state, TableSegmentationOptions::Clustering clus
                                        live ? &plain : nullptr, plain_ms)
                    : ScanFrameSet(in.frames, triangulator, decoder);
     if (!second_looks) options.second_look_rounds = 0;
-    if (roll_steps >= 0) options.roll_steps = roll_steps;
+    if (adjust) adjust(&options);
     options.recognition.threads = threads;
     const SceneRecognitionResult scene = recogniser.Recognise(result.triangulation.cloud, options);
     const double ms =
@@ -222,7 +224,7 @@ std::vector<double> pcl_cpu;
 std::vector<double> plain_decode_cpu;
 
 void BM_Table_AllObjects_PlainDecode(benchmark::State& state) {
-  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &plain_decode_cpu, true, -1,
+  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &plain_decode_cpu, true, {},
            DecoderOptions());
   state.SetLabel("peer: the same with the plain per-pixel decode (no sub-pixel edges, no code "
                  "consistency)");
@@ -230,7 +232,7 @@ void BM_Table_AllObjects_PlainDecode(benchmark::State& state) {
 std::vector<double> whole_image_cpu;
 
 void BM_Table_AllObjects_WholeImageConsistency(benchmark::State& state) {
-  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &whole_image_cpu, true, -1,
+  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &whole_image_cpu, true, {},
            ScanOptions().decoder, false);
   state.SetLabel("peer: the same with code consistency over the whole image (ScanFrameSet, "
                  "before 2026-12-05)");
@@ -244,7 +246,7 @@ std::vector<double> live_cpu;
 // its bit, the finish and the table scan's own steps remain (what "last frame → every
 // result" means for the live loop).
 void BM_Table_AllObjects_Live(benchmark::State& state) {
-  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &live_cpu, true, -1,
+  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &live_cpu, true, {},
            ScanOptions().decoder, true, true);
   state.SetLabel("the live loop: the plain decode during the capture (IncrementalDecoder), timed "
                  "from the last frame");
@@ -254,15 +256,25 @@ void BM_Table_AllObjects_Live(benchmark::State& state) {
 // 2`): the decoder's consistency and edges, both triangulations and the pose stages on two
 // threads. Wall clock (frame_to_results_*); not the issue's one-core measure.
 void BM_Table_AllObjects_Live_TwoCores(benchmark::State& state) {
-  RunTable(state, TableSegmentationOptions::Clustering::kGrid, nullptr, true, -1,
+  RunTable(state, TableSegmentationOptions::Clustering::kGrid, nullptr, true, {},
            ScanOptions().decoder, true, true, 2);
   state.SetLabel("the live loop on 2 cores (wall clock)");
 }
 
 void BM_Table_AllObjects_NoRolls(benchmark::State& state) {
-  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &no_rolls_cpu, true, 0);
+  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &no_rolls_cpu, true,
+           [](SceneRecognitionOptions* o) { o->roll_steps = 0; });
   state.SetLabel("peer: the same without rolled hypotheses (models turned about their axis of "
                  "near symmetry)");
+}
+
+std::vector<double> rolls_everywhere_cpu;
+
+void BM_Table_AllObjects_RollExplainedClusters(benchmark::State& state) {
+  RunTable(state, TableSegmentationOptions::Clustering::kGrid, &rolls_everywhere_cpu, true,
+           [](SceneRecognitionOptions* o) { o->roll_explained_clusters = true; });
+  state.SetLabel("peer: the same with other classes' rolled hypotheses also on clusters the "
+                 "class ranked first explains (before 2026-12-07)");
 }
 
 void BM_Table_AllObjects_FirstLookOnly(benchmark::State& state) {
@@ -284,6 +296,10 @@ void BM_Table_AllObjects(benchmark::State& state) {
   }
   if (!no_rolls_cpu.empty()) {
     state.counters["cpu_ratio_vs_no_rolls"] = Quantile(table_totals, 0.5) / Quantile(no_rolls_cpu, 0.5);
+  }
+  if (!rolls_everywhere_cpu.empty()) {
+    state.counters["cpu_ratio_vs_rolls_on_explained_clusters"] =
+        Quantile(table_totals, 0.5) / Quantile(rolls_everywhere_cpu, 0.5);
   }
   if (!plain_decode_cpu.empty()) {
     state.counters["cpu_ratio_vs_plain_decode"] =
@@ -388,6 +404,7 @@ BENCHMARK(BM_Segment_PclKdTree)->Iterations(5 * kScenes);
 BENCHMARK(BM_Segment_Grid)->Iterations(5 * kScenes);
 BENCHMARK(BM_Table_AllObjects_PclClustering)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects_NoRolls)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Table_AllObjects_RollExplainedClusters)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects_PlainDecode)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects_WholeImageConsistency)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_Table_AllObjects_FirstLookOnly)->Iterations(5 * kScenes)->UseManualTime()->Unit(benchmark::kMillisecond);

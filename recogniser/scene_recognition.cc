@@ -1852,9 +1852,11 @@ AcceptedOnClusters AcceptedOn(size_t num_clusters, const std::vector<HypothesisE
 
 // Every cluster's first recognition gets its rolled hypotheses (AddRolledOf), once, for
 // the classes none of its hypotheses was accepted as in `evidence` (a mug already found
-// needs no other turn to be a mug). True when that added hypotheses.
+// needs no other turn to be a mug) — but a cluster the class ranked first explains (less
+// than other_class_remainder of it left, `left`) none unless roll_explained_clusters. True
+// when that added hypotheses.
 bool AddRolledHypotheses(const SceneContext& ctx, const std::vector<HypothesisEvidence>& evidence,
-                         HypothesisPool* pool) {
+                         const std::vector<double>& left, HypothesisPool* pool) {
   if (ctx.options.roll_steps <= 1) return false;
   const Stopwatch watch;
   const std::vector<std::set<int>> accepted_classes =
@@ -1862,6 +1864,11 @@ bool AddRolledHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   bool added = false;
   for (size_t c = 0; c < ctx.clusters.size(); ++c) {
     const int cluster = static_cast<int>(c);
+    const std::vector<ClassScore>& ranked = pool->cluster_results[c].classes;
+    if (!ctx.options.roll_explained_clusters && left[c] < ctx.options.other_class_remainder &&
+        !ranked.empty() && accepted_classes[c].count(ranked.front().class_index)) {
+      continue;  // explained by the class ranked first
+    }
     added |= AddRolledOf(
         ctx, pool->cluster_results[c], cluster,
         [&ctx, cluster, pool] { return ClusterPoseQuery(ctx, cluster, pool); }, pool,
@@ -2559,7 +2566,7 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     const bool first_size_look = !pool.size_looks_taken;
     added |= AddSizeHypotheses(ctx, &pool);
     const double t_sizes = look.WallMs();
-    if (first_size_look) added |= AddRolledHypotheses(ctx, evidence, &pool);
+    if (first_size_look) added |= AddRolledHypotheses(ctx, evidence, left, &pool);
     added |= AddOtherClassLooks(ctx, evidence, left, &pool);
     const double t_rolled = look.WallMs();
     added |= AddSplitHypotheses(ctx, to_split, &pool);

@@ -171,6 +171,14 @@ struct SceneRecognitionOptions {
   int roll_steps = 6;
   double roll_min_class_probability = 0.15;
   double roll_min_asymmetry = 0.02;
+  // Those turns are not taken on a cluster already explained: an accepted hypothesis of
+  // the class its recognition ranks first, less than other_class_remainder of its points
+  // left unexplained — no part of it for another class's turned model to put a handle on
+  // (a turn can then at most tie). true: turned there too. Procedural tables, 16 seeds:
+  // the same objects in 190 of 192 scans and the same totals (class recall 331/384 and
+  // 447/534, detections, clutter); `table_latency_bench` (database instances, which the
+  // first looks explain) scene recognition 100 → 70 ms median.
+  bool roll_explained_clusters = false;
   // A cluster no hypothesis explains (or with a remainder of at least remainder_fraction)
   // is split along its concave seams
   // (recogniser/convex_segmentation.h) and its split_segments largest segments are
