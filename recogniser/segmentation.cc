@@ -20,23 +20,39 @@
 namespace sope {
 namespace {
 
-// Least-squares plane of `points` (centroid + smallest eigenvector), normal towards the
-// origin (the camera).
-bool FitPlane(const std::vector<Eigen::Vector3f>& points, const std::vector<int>& indices,
-              TablePlane* plane) {
-  if (indices.size() < 3) return false;
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (int i : indices) mean += points[i].cast<double>();
-  mean /= static_cast<double>(indices.size());
-  Eigen::Matrix3d covariance = Eigen::Matrix3d::Zero();
-  for (int i : indices) {
-    const Eigen::Vector3d d = points[i].cast<double>() - mean;
-    covariance += d * d.transpose();
+// Sums of points taken relative to a point near them (`origin`, so that the second moments
+// lose nothing to cancellation), in double: count, Σd and the six distinct products of Σd·dᵀ.
+struct PlaneSums {
+  double count = 0.0;
+  double x = 0.0, y = 0.0, z = 0.0;
+  double xx = 0.0, xy = 0.0, xz = 0.0, yy = 0.0, yz = 0.0, zz = 0.0;
+  void Add(const Eigen::Vector3f& d) {
+    const double dx = d.x(), dy = d.y(), dz = d.z();
+    count += 1.0;
+    x += dx;
+    y += dy;
+    z += dz;
+    xx += dx * dx;
+    xy += dx * dy;
+    xz += dx * dz;
+    yy += dy * dy;
+    yz += dy * dz;
+    zz += dz * dz;
   }
+};
+
+// Least-squares plane of the summed points (centroid + smallest eigenvector of their
+// covariance), normal towards the camera (the frame's origin).
+bool FitPlane(const PlaneSums& s, const Eigen::Vector3f& origin, TablePlane* plane) {
+  if (s.count < 3) return false;
+  const Eigen::Vector3d mean = Eigen::Vector3d(s.x, s.y, s.z) / s.count;
+  Eigen::Matrix3d covariance;
+  covariance << s.xx, s.xy, s.xz, s.xy, s.yy, s.yz, s.xz, s.yz, s.zz;
+  covariance = covariance / s.count - mean * mean.transpose();
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(covariance);
   Eigen::Vector3d normal = solver.eigenvectors().col(0);
   if (!normal.allFinite()) return false;
-  double offset = -normal.dot(mean);
+  double offset = -normal.dot(origin.cast<double>() + mean);
   if (offset < 0) {
     normal = -normal;
     offset = -offset;
@@ -204,14 +220,17 @@ std::vector<int> RangeBand(const PointCloud& cloud, const TableSegmentationOptio
 // (metres) in `tolerances`; `inliers` counts those of the last round. False when a fit fails.
 bool RefitOnInliers(const PointCloud& cloud, const std::vector<int>& band,
                     std::initializer_list<double> tolerances, TablePlane* plane) {
-  std::vector<int> inliers;
   for (const double tolerance : tolerances) {
-    inliers.clear();
+    // The inliers summed as they are found (one pass), about the plane's point nearest the
+    // camera: the table's points lie within a few decimetres of it.
+    const Eigen::Vector3f origin = -plane->offset * plane->normal;
+    PlaneSums sums;
     for (int i : band) {
-      if (std::abs(plane->Height(cloud.points[i])) <= tolerance) inliers.push_back(i);
+      const Eigen::Vector3f& p = cloud.points[i];
+      if (std::abs(plane->Height(p)) <= tolerance) sums.Add(p - origin);
     }
-    plane->inliers = static_cast<int>(inliers.size());
-    if (!FitPlane(cloud.points, inliers, plane)) return false;
+    plane->inliers = static_cast<int>(sums.count);
+    if (!FitPlane(sums, origin, plane)) return false;
   }
   return true;
 }
