@@ -90,6 +90,13 @@ SceneObject TableTop(const TableFrame& frame) {
   return table;
 }
 
+// A scene of the table top alone (objects are added to it).
+Scene EmptyTable(const TableFrame& frame) {
+  Scene scene;
+  scene.objects.push_back(TableTop(frame));
+  return scene;
+}
+
 PointCloud ScanScene(const Scene& scene) {
   const RigCalibration calibration = DefaultRigCalibration();
   VirtualRig rig(calibration);
@@ -429,6 +436,12 @@ TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSi
   }
 }
 
+// Two database mugs and two database glasses (procedural instances).
+std::unique_ptr<Database> MugsAndGlasses(const testing::ScratchDir& scratch) {
+  return testing::ProceduralDatabase(
+      scratch, {{ObjectClass::kMug, {2, 8}}, {ObjectClass::kGlass, {12, 15}}});
+}
+
 // Class evidence in the selection (SceneRecognitionOptions::class_weight): the database
 // holds mugs 2 and 8 and glasses 12 and 15; on the table lies an unseen mug (1186) on its
 // side, its handle turned up and to one side. The recogniser ranks the mug class first
@@ -438,12 +451,10 @@ TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSi
 // mug.
 TEST(SceneRecognitionClassEvidence, AMugOnItsSideIsNotTakenForAWiderGlass) {
   const testing::ScratchDir scratch;
-  const std::unique_ptr<Database> db = testing::ProceduralDatabase(
-      scratch, {{ObjectClass::kMug, {2, 8}}, {ObjectClass::kGlass, {12, 15}}});
+  const std::unique_ptr<Database> db = MugsAndGlasses(scratch);
 
   const TableFrame frame;
-  Scene scene;
-  scene.objects.push_back(TableTop(frame));
+  Scene scene = EmptyTable(frame);
   // The mug's axis (model z) laid along the table, its handle (model +x) turned 60° up
   // from the table, the whole turned 0.5 rad about the vertical; its lowest point on the
   // table.
@@ -496,19 +507,18 @@ TEST(SceneRecognitionClassEvidence, AMugOnItsSideIsNotTakenForAWiderGlass) {
 // standing in full view, which the database's mugs also resemble, is a glass either way,
 // and the mug beside it a mug; only the hypotheses that could at most tie are left out.
 TEST(SceneRecognitionRolls, AClusterTheFirstClassExplainsGetsNoOtherClassTurns) {
-  const testing::ScratchDir scratch;
-  const std::unique_ptr<Database> db = testing::ProceduralDatabase(
-      scratch, {{ObjectClass::kMug, {2, 8}}, {ObjectClass::kGlass, {12, 15}}});
-  const TableFrame frame;
-  Scene scene;
-  scene.objects.push_back(TableTop(frame));
+  // Database instances, standing side by side.
   const TriangleMesh glass = MakeObject(ObjectClass::kGlass, 12);
   const TriangleMesh mug = MakeObject(ObjectClass::kMug, 2);
+  const TableFrame frame;
   const Rigid3d glass_pose = frame.Pose(-0.06, 0.0, 0.3);
   const Rigid3d mug_pose = frame.Pose(0.08, 0.02, 2.2);
+  Scene scene = EmptyTable(frame);
   scene.objects.push_back({glass, glass_pose, 0.8, {}});
   scene.objects.push_back({mug, mug_pose, 0.8, {}});
   const PointCloud cloud = ScanScene(scene);
+  const testing::ScratchDir scratch;
+  const std::unique_ptr<Database> db = MugsAndGlasses(scratch);
   const SceneRecogniser recogniser(*db);
   SceneRecognitionOptions everywhere;
   everywhere.roll_explained_clusters = true;
