@@ -202,6 +202,8 @@ struct SceneContext {
   const std::vector<ObjectCluster>& clusters;
   const ThinnedScene& scene;
   double max_diameter;  // of the database's largest model, metres
+  // Per class: whether a cluster may be taken for an unseen instance of it (ClassLevels).
+  const std::vector<uint8_t>& class_level;
 };
 
 // The hypotheses gathered so far, each cluster's first recognition, and the time spent.
@@ -289,7 +291,8 @@ bool SideBySide(const SceneContext& ctx, size_t count,
   one_thread.recognition.threads = 1;
   const SceneContext ctx_one_thread{ctx.scene_recogniser, ctx.recogniser, ctx.database,
                                     ctx.cloud,            one_thread,     ctx.plane,
-                                    ctx.clusters,         ctx.scene,      ctx.max_diameter};
+                                    ctx.clusters,         ctx.scene,      ctx.max_diameter,
+                                    ctx.class_level};
   RunJobs(threads, count, [&](size_t k) { job(ctx_one_thread, k); });
   return true;
 }
@@ -365,17 +368,18 @@ std::vector<int> ModelsOfClass(const Database& database, int class_index) {
   return models;
 }
 
-// Whether a cluster may be taken for an unseen instance of class `class_index` (its
-// size looks, class-level acceptance): the class is a category (Database::IsCategory), or
-// its one model is the class (an instance database's class: a looser look at that model).
-// A folder of several unlike models (a dataset's) is not: a stone is no unseen "ycb".
-bool ClassLevelAllowed(const Database& database, int class_index) {
-  if (database.IsCategory(class_index)) return true;
-  int models = 0;
-  for (int m = 0; m < database.num_models() && models < 2; ++m) {
-    models += database.model(m).class_index == class_index;
+// Per class, whether a cluster may be taken for an unseen instance of it (its size looks,
+// class-level acceptance): the class is a category (Database::IsCategory), or its one model
+// is the class (an instance database's class: a looser look at that model). A folder of
+// several unlike models (a dataset's) is not: a stone is no unseen "ycb".
+std::vector<uint8_t> ClassLevels(const Database& database) {
+  std::vector<uint8_t> allowed(database.classes().size());
+  for (size_t c = 0; c < allowed.size(); ++c) {
+    const int class_index = static_cast<int>(c);
+    allowed[c] = database.IsCategory(class_index) ||
+                 ModelsOfClass(database, class_index).size() == 1;
   }
-  return models == 1;
+  return allowed;
 }
 
 // `recognition` with its best posed suggestion of class `class_index` first, as a
@@ -402,7 +406,7 @@ std::optional<Hypothesis> FirstClassSource(const SceneContext& ctx,
                                            std::vector<int>* class_models) {
   if (recognition.classes.empty() ||
       recognition.classes.front().probability < ctx.options.verification.min_class_probability ||
-      !ClassLevelAllowed(ctx.database, recognition.classes.front().class_index)) {
+      !ctx.class_level[recognition.classes.front().class_index]) {
     return std::nullopt;
   }
   const int first_class = recognition.classes.front().class_index;
@@ -1917,7 +1921,7 @@ bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvi
     std::vector<Hypothesis> bodies{*source};
     HypothesisPool siblings;
     // Siblings and the scaled look only for a class an unseen instance may be taken for.
-    const bool class_level = ClassLevelAllowed(c.database, class_score.class_index);
+    const bool class_level = c.class_level[class_score.class_index] != 0;
     if (class_level) AddSiblingsOf(c, *source, class_models, points, query_of, &siblings);
     for (Hypothesis& sibling : siblings.hypotheses) bodies.push_back(std::move(sibling));
     looks->recognise_ms += siblings.recognise_ms;
@@ -2021,10 +2025,6 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
   const SceneRecognitionOptions& options = ctx.options;
   const TablePlane& plane = ctx.plane;
   const Stopwatch watch;
-  std::vector<uint8_t> class_level_allowed(ctx.database.classes().size());
-  for (size_t c = 0; c < class_level_allowed.size(); ++c) {
-    class_level_allowed[c] = ClassLevelAllowed(ctx.database, static_cast<int>(c));
-  }
   std::vector<SceneHypothesis> scene_hypotheses;
   for (const Hypothesis& h : pool->hypotheses) {
     const Suggestion& s = h.recognition.suggestions[0];
@@ -2042,7 +2042,7 @@ std::vector<HypothesisEvidence> VerifyPool(const SceneContext& ctx, HypothesisPo
     const std::vector<ClassScore>& classes = h.recognition.classes;
     const double class_probability =
         !classes.empty() && classes.front().class_index == s.class_index &&
-                class_level_allowed[s.class_index]
+                ctx.class_level[s.class_index]
             ? classes.front().probability
             : 0.0;
     scene_hypotheses.push_back(
@@ -2513,8 +2513,10 @@ SceneRecognitionResult SceneRecogniser::Recognise(const PointCloud& cloud,
     return result;
   }
   const ThinnedScene scene = ThinClusters(cloud, clusters, options.scene_leaf);
+  const std::vector<uint8_t> class_level = ClassLevels(database_);
   const SceneContext ctx{*this,    recogniser_, database_, cloud,       options,
-                         result.segmentation.plane, clusters,   scene,   max_diameter};
+                         result.segmentation.plane, clusters,   scene,   max_diameter,
+                         class_level};
 
   HypothesisPool pool;
   pool.cluster_results.resize(clusters.size());
