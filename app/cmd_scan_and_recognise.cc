@@ -9,6 +9,8 @@
 #include <memory>
 #include <optional>
 
+#include <fmt/format.h>
+
 #include "app/cli_util.h"
 #include "app/commands.h"
 #include "app/live_rig.h"
@@ -60,9 +62,12 @@ void Flags::Add(CLI::App& app) {
   app.add_option("--frames", frames_dirs, "Recorded frame sets, one scan each")
       ->excludes(virtual_option)
       ->excludes(camera_option);
+  const DefaultDatabaseOptions default_db;
   app.add_option("--db", db_path,
-                 "Database (.sopedb, from sope build-db); default for the virtual rig: the "
-                 "cached procedural database (10 classes x 16 instances x 100 views)");
+                 fmt::format("Database (.sopedb, from sope build-db); default for the virtual "
+                             "rig: the cached procedural database (10 classes x {} instances x "
+                             "{} views)",
+                             default_db.instances, default_db.views));
   app.add_option("--calibration", calibration_path,
                  "Rig calibration YAML (--frames: default the one frames.json names; virtual: "
                  "default the virtual rig's true calibration)");
@@ -93,8 +98,9 @@ void Flags::Add(CLI::App& app) {
                             "Always this class (mug, bottle, ...; CLASS:SEED for one instance)");
   virtual_group
       ->add_option("--instances", instances,
-                   "unseen (instances not in the database) or database (the default "
-                   "database's own instances, seeds 0-7)")
+                   fmt::format("unseen (instances not in the database) or database (the "
+                               "default database's own instances, seeds {}-{})",
+                               default_db.seed, default_db.seed + default_db.instances - 1))
       ->capture_default_str();
   virtual_group->add_flag("--no-backdrop", no_backdrop,
                           "No backdrop behind the object (--table: no wall behind the table)");
