@@ -184,40 +184,79 @@ bool PassesLevel(const Explanation& explanation, double fit, double violation_fr
          !explanation.explained.empty();
 }
 
-// Sets e's fit figures from `explanation` (the level the hypothesis is judged at).
-void UseExplanation(const Explanation& explanation, double fit, double local_explained,
-                    bool class_level, HypothesisEvidence* e) {
-  e->class_level = class_level;
-  e->model_fit = fit;
-  e->local_explained = local_explained;
-  e->fitting = explanation.fitting;
-  e->local = explanation.local;
-  e->visible_fraction =
-      e->visible > 0 ? static_cast<double>(explanation.fitting) / e->visible : 0.0;
-  e->explained = explanation.explained;
-}
-
-// Judges `e` at instance level and, failing that, at class level (`taken` as in
-// PassesLevel); sets e->passes and the figures of the level it is judged at.
-void Judge(const LevelExplanations& levels, const SceneVerificationOptions& options,
-           const std::vector<uint8_t>& taken, HypothesisEvidence* e) {
-  const int unoccluded = std::max(1, e->visible - e->occluded - e->empty);
-  const double fit = std::min(1.0, static_cast<double>(levels.instance.fitting) / unoccluded);
+// The level a hypothesis is judged at (Judge) and its figures there.
+struct Verdict {
+  const Explanation* explanation = nullptr;
+  double fit = 0.0;
   double local_explained = 0.0;
+  bool class_level = false;
+  bool passes = false;
+};
+
+// The verdict on `e` at instance level and, failing that, at class level (`taken` as in
+// PassesLevel): the instance level's figures unless the class level passes.
+Verdict Decide(const LevelExplanations& levels, const SceneVerificationOptions& options,
+               const std::vector<uint8_t>& taken, const HypothesisEvidence& e) {
+  const int unoccluded = std::max(1, e.visible - e.occluded - e.empty);
+  Verdict v;
+  v.explanation = &levels.instance;
+  v.fit = std::min(1.0, static_cast<double>(levels.instance.fitting) / unoccluded);
+  if (!taken.empty()) {
+    // A second look changes only local_explained (its count of the box's points): a
+    // hypothesis that fails another test at both levels fails again (the verdict is not
+    // passing; its figures are left unset).
+    const auto seen_enough = [&](const Explanation& x) {
+      return !x.explained.empty() &&
+             (e.visible > 0 ? static_cast<double>(x.fitting) / e.visible : 0.0) >=
+                 options.min_visible_fraction;
+    };
+    const bool instance_may = v.fit >= options.min_model_fit &&
+                              e.violation_fraction <= options.max_violation_fraction &&
+                              seen_enough(levels.instance);
+    const bool class_may = levels.class_allowed && levels.class_fit >= levels.class_min_fit &&
+                           e.violation_fraction <= options.class_max_violation_fraction &&
+                           seen_enough(levels.class_level);
+    if (!instance_may && !class_may) return v;
+  }
   const bool instance =
-      PassesLevel(levels.instance, fit, e->violation_fraction, options.min_model_fit,
+      PassesLevel(levels.instance, v.fit, e.violation_fraction, options.min_model_fit,
                   options.min_local_explained, options.max_violation_fraction, taken,
-                  &local_explained);
-  UseExplanation(levels.instance, fit, local_explained, false, e);
+                  &v.local_explained);
   if (!instance && levels.class_allowed) {
     double class_local = 0.0;
-    if (PassesLevel(levels.class_level, levels.class_fit, e->violation_fraction,
+    if (PassesLevel(levels.class_level, levels.class_fit, e.violation_fraction,
                     levels.class_min_fit, options.class_min_local_explained,
                     options.class_max_violation_fraction, taken, &class_local)) {
-      UseExplanation(levels.class_level, levels.class_fit, class_local, true, e);
+      v.explanation = &levels.class_level;
+      v.fit = levels.class_fit;
+      v.local_explained = class_local;
+      v.class_level = true;
     }
   }
-  e->passes = (instance || e->class_level) && e->visible_fraction >= options.min_visible_fraction;
+  const double visible_fraction =
+      e.visible > 0 ? static_cast<double>(v.explanation->fitting) / e.visible : 0.0;
+  v.passes = (instance || v.class_level) && visible_fraction >= options.min_visible_fraction;
+  return v;
+}
+
+// Sets e's fit figures from the verdict (the level the hypothesis is judged at).
+void Apply(const Verdict& v, HypothesisEvidence* e) {
+  e->class_level = v.class_level;
+  e->model_fit = v.fit;
+  e->local_explained = v.local_explained;
+  e->fitting = v.explanation->fitting;
+  e->local = v.explanation->local;
+  e->visible_fraction =
+      e->visible > 0 ? static_cast<double>(v.explanation->fitting) / e->visible : 0.0;
+  e->explained = v.explanation->explained;
+  e->passes = v.passes;
+}
+
+// Judges `e` on its own (no point taken by another hypothesis) at instance level and,
+// failing that, at class level; sets e->passes and the figures of the level it is judged at.
+void Judge(const LevelExplanations& levels, const SceneVerificationOptions& options,
+           HypothesisEvidence* e) {
+  Apply(Decide(levels, options, {}, *e), e);
 }
 
 // The evidence for one hypothesis, at instance level and, failing that, at class level;
@@ -240,9 +279,8 @@ HypothesisEvidence EvaluateHypothesis(const PointCloud& scene, const SceneHypoth
       ExplainScene(scene, visible, rotation, translation, options, options.inlier_distance);
   const int unoccluded = std::max(1, e.visible - e.occluded - e.empty);
   e.violation_fraction = static_cast<double>(e.violations) / unoccluded;
-  const std::vector<uint8_t> nothing_taken;
   levels->class_allowed = false;
-  Judge(*levels, options, nothing_taken, &e);
+  Judge(*levels, options, &e);
   // Class level, for a hypothesis that fails at instance level: the same tests at the class
   // inlier distance (another instance's surface lies some millimetres off the database
   // model's), with their own thresholds.
@@ -256,7 +294,7 @@ HypothesisEvidence EvaluateHypothesis(const PointCloud& scene, const SceneHypoth
                                        options.class_inlier_distance);
     levels->class_fit =
         std::min(1.0, static_cast<double>(levels->class_level.fitting) / unoccluded);
-    Judge(*levels, options, nothing_taken, &e);
+    Judge(*levels, options, &e);
   }
   return e;
 }
@@ -363,30 +401,54 @@ void SelectGreedily(const std::vector<SceneHypothesis>& hypotheses,
   std::vector<HypothesisEvidence>& out = *evidence;
   std::vector<uint8_t>& taken = *taken_points;
   std::vector<uint8_t>& done = *done_hypotheses;
+  // The candidates (passing, not done), each with its explained points already taken; and
+  // per scene point not taken, the candidates explaining it (CSR), so that accepting one
+  // updates the others' counts instead of recounting them every round. The same gains,
+  // hence the same choices, as counting afresh.
+  std::vector<int> candidates;
+  for (size_t h = 0; h < hypotheses.size(); ++h) {
+    if (!done[h] && out[h].passes) candidates.push_back(static_cast<int>(h));
+  }
+  std::vector<int> duplicates(hypotheses.size(), 0);
+  std::vector<int> start(taken.size() + 1, 0);
+  for (const int h : candidates) {
+    for (const int j : out[h].explained) {
+      if (taken[j]) {
+        ++duplicates[h];
+      } else {
+        ++start[j + 1];
+      }
+    }
+  }
+  for (size_t j = 0; j < taken.size(); ++j) start[j + 1] += start[j];
+  std::vector<int> holders(start.back());
+  {
+    std::vector<int> fill(start.begin(), start.end() - 1);
+    for (const int h : candidates) {
+      for (const int j : out[h].explained) {
+        if (!taken[j]) holders[fill[j]++] = h;
+      }
+    }
+  }
   while (true) {
     int best = -1;
     double best_gain = 0.0;
-    int best_duplicates = 0;
-    for (size_t h = 0; h < hypotheses.size(); ++h) {
-      if (done[h] || !out[h].passes) continue;
-      int duplicates = 0;
-      for (const int j : out[h].explained) duplicates += taken[j];
-      const int fresh = static_cast<int>(out[h].explained.size()) - duplicates;
-      const double gain = fresh - options.duplicate_weight * duplicates -
+    for (const int h : candidates) {
+      if (done[h]) continue;
+      const int explained = static_cast<int>(out[h].explained.size());
+      const int fresh = explained - duplicates[h];
+      const double gain = fresh - options.duplicate_weight * duplicates[h] -
                           options.violation_weight * out[h].violations -
-                          hypotheses[h].prior_penalty * out[h].explained.size();
-      if (gain < options.min_gain_fraction * out[h].explained.size()) continue;
+                          hypotheses[h].prior_penalty * explained;
+      if (gain < options.min_gain_fraction * explained) continue;
       if (best < 0 || gain > best_gain) {
-        best = static_cast<int>(h);
+        best = h;
         best_gain = gain;
-        best_duplicates = duplicates;
       }
     }
     if (best < 0) {
-      for (size_t h = 0; h < hypotheses.size(); ++h) {
-        if (done[h] || !out[h].passes) continue;
-        out[h].duplicates = 0;
-        for (const int j : out[h].explained) out[h].duplicates += taken[j];
+      for (const int h : candidates) {
+        if (!done[h]) out[h].duplicates = duplicates[h];
       }
       break;
     }
@@ -400,8 +462,12 @@ void SelectGreedily(const std::vector<SceneHypothesis>& hypotheses,
       continue;
     }
     out[best].accepted = true;
-    out[best].duplicates = best_duplicates;
-    for (const int j : out[best].explained) taken[j] = 1;
+    out[best].duplicates = duplicates[best];
+    for (const int j : out[best].explained) {
+      if (taken[j]) continue;
+      taken[j] = 1;
+      for (int k = start[j]; k < start[j + 1]; ++k) ++duplicates[holders[k]];
+    }
   }
 }
 
@@ -420,10 +486,10 @@ void CompleteSelection(const std::vector<SceneHypothesis>& hypotheses,
     bool more = false;
     for (size_t h = 0; h < hypotheses.size(); ++h) {
       if ((*done)[h] || out[h].passes) continue;
-      HypothesisEvidence relook = out[h];
-      Judge(levels[h], options, *taken, &relook);
+      // Its figures change only when it now passes.
+      const Verdict relook = Decide(levels[h], options, *taken, out[h]);
       if (relook.passes) {
-        out[h] = std::move(relook);
+        Apply(relook, &out[h]);
         more = true;
       }
     }
