@@ -237,8 +237,8 @@ const std::vector<OptionField<RecognitionOptions>>& RecognitionOptions::Fields()
         Field(&O::threads, "threads",
               "Threads of the pose screening and refinement, and of a table scene's clusters' "
               "first recognitions (same answers for any count, but that a table scene's "
-              "convex splits, from PCL's supervoxels, can differ from run to run with two or "
-              "more: README, Tabletop scenes)")
+              "convex splits, from PCL's supervoxels, can differ from run to run, most often "
+              "with two or more: README, Tabletop scenes)")
             .AtLeast(1)
             .AtMost(64)
             .Flag("--pose-threads")};
