@@ -350,8 +350,9 @@ std::string RecognitionResultToJson(const RecognitionResult& result) {
                          {"vote", c.vote}});
     }
     j["classes"] = classes;
-    j["ambiguous_with"] =
-        result.ambiguous_with.empty() ? nlohmann::json(nullptr) : nlohmann::json(result.ambiguous_with);
+    j["ambiguous_with"] = result.ambiguous_with.empty()
+                              ? nlohmann::json(nullptr)
+                              : nlohmann::json(result.ambiguous_with);
   }
   return j.dump();
 }
