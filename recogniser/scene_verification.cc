@@ -164,12 +164,16 @@ struct LevelExplanations {
 
 // The fit tests at one level with local_explained counted over the box's scene points
 // that no other accepted hypothesis explains (`taken`: explained by an accepted one); the
-// plain test when `taken` is empty.
+// plain test when `taken` is empty. Only local_explained depends on `taken`: a level that
+// fails the other tests fails whatever is taken, and its local_explained is then the plain
+// one (the box's points not walked).
 bool PassesLevel(const Explanation& explanation, double fit, double violation_fraction,
                  double min_fit, double min_local, double max_violations,
                  const std::vector<uint8_t>& taken, double* local_explained) {
+  const bool other_tests = fit >= min_fit && violation_fraction <= max_violations &&
+                           !explanation.explained.empty();
   int others = 0;
-  if (!taken.empty()) {
+  if (other_tests && !taken.empty()) {
     size_t k = 0;  // both lists increase
     for (const int j : explanation.local_points) {
       while (k < explanation.explained.size() && explanation.explained[k] < j) ++k;
@@ -180,8 +184,12 @@ bool PassesLevel(const Explanation& explanation, double fit, double violation_fr
   const int local = explanation.local - others;
   *local_explained =
       local > 0 ? static_cast<double>(explanation.explained.size()) / local : 0.0;
-  return fit >= min_fit && *local_explained >= min_local && violation_fraction <= max_violations &&
-         !explanation.explained.empty();
+  return other_tests && *local_explained >= min_local;
+}
+
+// The fraction of e's camera-facing model points that fit at a level (`fitting` of them).
+double VisibleFraction(int fitting, const HypothesisEvidence& e) {
+  return e.visible > 0 ? static_cast<double>(fitting) / e.visible : 0.0;
 }
 
 // The level a hypothesis is judged at (Judge) and its figures there.
@@ -201,23 +209,6 @@ Verdict Decide(const LevelExplanations& levels, const SceneVerificationOptions& 
   Verdict v;
   v.explanation = &levels.instance;
   v.fit = std::min(1.0, static_cast<double>(levels.instance.fitting) / unoccluded);
-  if (!taken.empty()) {
-    // A second look changes only local_explained (its count of the box's points): a
-    // hypothesis that fails another test at both levels fails again (the verdict is not
-    // passing; its figures are left unset).
-    const auto seen_enough = [&](const Explanation& x) {
-      return !x.explained.empty() &&
-             (e.visible > 0 ? static_cast<double>(x.fitting) / e.visible : 0.0) >=
-                 options.min_visible_fraction;
-    };
-    const bool instance_may = v.fit >= options.min_model_fit &&
-                              e.violation_fraction <= options.max_violation_fraction &&
-                              seen_enough(levels.instance);
-    const bool class_may = levels.class_allowed && levels.class_fit >= levels.class_min_fit &&
-                           e.violation_fraction <= options.class_max_violation_fraction &&
-                           seen_enough(levels.class_level);
-    if (!instance_may && !class_may) return v;
-  }
   const bool instance =
       PassesLevel(levels.instance, v.fit, e.violation_fraction, options.min_model_fit,
                   options.min_local_explained, options.max_violation_fraction, taken,
@@ -233,9 +224,8 @@ Verdict Decide(const LevelExplanations& levels, const SceneVerificationOptions& 
       v.class_level = true;
     }
   }
-  const double visible_fraction =
-      e.visible > 0 ? static_cast<double>(v.explanation->fitting) / e.visible : 0.0;
-  v.passes = (instance || v.class_level) && visible_fraction >= options.min_visible_fraction;
+  v.passes = (instance || v.class_level) &&
+             VisibleFraction(v.explanation->fitting, e) >= options.min_visible_fraction;
   return v;
 }
 
@@ -246,8 +236,7 @@ void Apply(const Verdict& v, HypothesisEvidence* e) {
   e->local_explained = v.local_explained;
   e->fitting = v.explanation->fitting;
   e->local = v.explanation->local;
-  e->visible_fraction =
-      e->visible > 0 ? static_cast<double>(v.explanation->fitting) / e->visible : 0.0;
+  e->visible_fraction = VisibleFraction(v.explanation->fitting, *e);
   e->explained = v.explanation->explained;
   e->passes = v.passes;
 }
