@@ -255,27 +255,8 @@ void Margins(const AxisFrames& axis, const cv::Mat* white, const cv::Mat* black,
   }
 }
 
-// Candidates ahead whose frames PrefetchMargins asks for.
-constexpr int kPrefetchAhead = 1;
 // Candidates decided by one task of the pool.
 constexpr int kCandidatesPerStripe = 64;
-
-// Asks for the cache lines Margins reads at `pixel` (every bit's frames over the largest
-// window), so that deciding a candidate overlaps fetching the next one's.
-void PrefetchMargins(const std::vector<AxisFrames>& axes, cv::Point pixel, int max_radius) {
-  for (const AxisFrames& axis : axes) {
-    const cv::Mat& first = *axis.pattern[0];
-    const int y0 = std::max(0, pixel.y - max_radius);
-    const int y1 = std::min(first.rows - 1, pixel.y + max_radius);
-    const size_t offset = static_cast<size_t>(pixel.x) * first.elemSize();
-    for (size_t k = 0; k < axis.pattern.size(); ++k) {
-      for (int yy = y0; yy <= y1; ++yy) {
-        __builtin_prefetch(axis.pattern[k]->ptr(yy) + offset);
-        if (axis.inverse[k] != nullptr) __builtin_prefetch(axis.inverse[k]->ptr(yy) + offset);
-      }
-    }
-  }
-}
 
 // fn(x) for each x < cols whose byte in `bytes` is not 0, in increasing order, reading
 // eight bytes at a time (marks are sparse): `bytes` must be readable up to
@@ -725,18 +706,12 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
                       [&](const cv::Range& range) {
                         Scratch scratch;
                         for (int i = range.start; i < range.end; ++i) {
-                          // The frames around the next candidates are on their way while
-                          // this one is decided.
-                          if (i + kPrefetchAhead < range.end) {
-                            PrefetchMargins(axes, candidates[i + kPrefetchAhead],
-                                            options.consistency.max_average_radius);
-                          }
                           filled_here[i] =
                               decide(candidates[i].x, candidates[i].y, &scratch, &decided[i]);
                         }
                       },
                       // Stripes of kCandidatesPerStripe candidates (OpenCV's default is one
-                      // per stripe): a scratch per stripe, the prefetches within it.
+                      // per stripe): a scratch per stripe.
                       std::max(1.0, static_cast<double>(candidates.size()) / kCandidatesPerStripe));
     std::vector<Fill> fills;
     for (size_t i = 0; i < candidates.size(); ++i) {
