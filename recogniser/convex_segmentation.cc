@@ -4,6 +4,8 @@
 #include <cmath>
 #include <limits>
 #include <map>
+#include <set>
+#include <utility>
 #include <unordered_map>
 
 #include <pcl/point_types.h>
@@ -32,6 +34,96 @@ void ConvexSegmentationOptions::Check() const {
              "convex segmentation: min segment supervoxels must be ≥ 0, got {}",
              min_segment_supervoxels);
 }
+
+namespace {
+
+// LCCPSegmentation's doGrouping, recursiveSegmentGrowing, computeSegmentAdjacency and
+// mergeSmallSegments (PCL 1.13, the same steps and containers) with the supervoxels
+// visited in increasing label order instead of the graph's vertex order.
+std::map<uint32_t, uint32_t> GroupSupervoxels(
+    const std::vector<uint32_t>& labels,
+    const std::map<uint32_t, std::vector<uint32_t>>& neighbours,
+    const std::set<std::pair<uint32_t, uint32_t>>& valid, uint32_t min_segment_size) {
+  static const std::vector<uint32_t> kNone;
+  const auto neighbours_of = [&](uint32_t label) -> const std::vector<uint32_t>& {
+    const auto it = neighbours.find(label);
+    return it == neighbours.end() ? kNone : it->second;
+  };
+  std::map<uint32_t, uint32_t> sv_to_segment;
+  std::map<uint32_t, std::set<uint32_t>> segment_to_svs;
+  std::map<uint32_t, bool> processed;
+  for (const uint32_t label : labels) {
+    processed[label] = false;
+    sv_to_segment[label] = 0;
+  }
+  // Grouping: the supervoxels joined by valid (convex) edges, a segment each (from 1).
+  uint32_t segment = 1;
+  std::vector<uint32_t> stack;
+  for (const uint32_t label : labels) {
+    if (processed[label]) continue;
+    stack.assign(1, label);
+    processed[label] = true;
+    while (!stack.empty()) {
+      const uint32_t sv = stack.back();
+      stack.pop_back();
+      sv_to_segment[sv] = segment;
+      segment_to_svs[segment].insert(sv);
+      for (const uint32_t other : neighbours_of(sv)) {
+        if (!processed[other] && valid.count({std::min(sv, other), std::max(sv, other)}) > 0) {
+          processed[other] = true;
+          stack.push_back(other);
+        }
+      }
+    }
+    ++segment;
+  }
+  if (min_segment_size == 0) return sv_to_segment;
+  std::map<uint32_t, std::set<uint32_t>> segment_neighbours;
+  const auto compute_adjacency = [&] {
+    segment_neighbours.clear();
+    for (const uint32_t label : labels) {
+      const uint32_t current = sv_to_segment[label];
+      for (const uint32_t other : neighbours_of(label)) {
+        const uint32_t theirs = sv_to_segment[other];
+        if (current != theirs) segment_neighbours[current].insert(theirs);
+      }
+    }
+  };
+  compute_adjacency();
+  std::set<uint32_t> filtered;
+  bool again = true;
+  while (again) {
+    again = false;
+    // A pass that moves no supervoxel leaves everything as it was: PCL would repeat it
+    // for ever; here it ends the merging.
+    bool moved = false;
+    for (const uint32_t label : labels) {
+      const uint32_t current = sv_to_segment[label];
+      uint32_t largest = current;
+      size_t largest_size = segment_to_svs[current].size();
+      if (segment_neighbours[current].empty()) continue;
+      if (segment_to_svs[current].size() > min_segment_size) continue;
+      again = true;
+      for (const uint32_t other : segment_neighbours[current]) {
+        if (segment_to_svs[other].size() >= largest_size) {
+          largest = other;
+          largest_size = segment_to_svs[other].size();
+        }
+      }
+      if (largest == current || filtered.count(largest) > 0) continue;
+      sv_to_segment[label] = largest;
+      moved = true;
+      filtered.insert(current);
+      for (const uint32_t sv : segment_to_svs[current]) segment_to_svs[largest].insert(sv);
+    }
+    for (const uint32_t gone : filtered) segment_to_svs.erase(gone);
+    compute_adjacency();
+    again = again && moved;
+  }
+  return sv_to_segment;
+}
+
+}  // namespace
 
 std::vector<std::vector<int>> ConvexSegments(const PointCloud& points,
                                              const ConvexSegmentationOptions& options) {
@@ -80,7 +172,30 @@ std::vector<std::vector<int>> ConvexSegments(const PointCloud& points,
     lccp.setMinSegmentSize(static_cast<std::uint32_t>(options.min_segment_supervoxels));
     lccp.setInputSupervoxels(clusters, adjacency);
     lccp.segment();
-    lccp.relabelCloud(*labelled);
+    // LCCP's edge classification only; its grouping and merging walk the graph's vertices
+    // in address order (boost setS), which made the segments depend on the heap's layout.
+    pcl::LCCPSegmentation<PointT>::SupervoxelAdjacencyList graph;
+    lccp.getSVAdjacencyList(graph);
+    std::vector<uint32_t> labels;
+    labels.reserve(clusters.size());
+    for (const auto& [label, supervoxel] : clusters) labels.push_back(label);
+    std::map<uint32_t, std::vector<uint32_t>> neighbours;
+    std::set<std::pair<uint32_t, uint32_t>> valid;
+    for (auto [edge, end] = boost::edges(graph); edge != end; ++edge) {
+      const uint32_t a = graph[boost::source(*edge, graph)];
+      const uint32_t b = graph[boost::target(*edge, graph)];
+      if (a == b) continue;
+      neighbours[a].push_back(b);
+      neighbours[b].push_back(a);
+      if (graph[*edge].is_valid) valid.emplace(std::min(a, b), std::max(a, b));
+    }
+    for (auto& [label, list] : neighbours) std::sort(list.begin(), list.end());
+    const std::map<uint32_t, uint32_t> segment_of = GroupSupervoxels(
+        labels, neighbours, valid, static_cast<uint32_t>(options.min_segment_supervoxels));
+    for (pcl::PointXYZL& point : *labelled) {
+      const auto it = segment_of.find(point.label);
+      point.label = it == segment_of.end() ? 0 : it->second;
+    }
   }
   std::unordered_map<std::uint32_t, int> segment_of_label;
   std::vector<std::vector<int>> segments;

@@ -6,6 +6,9 @@
 // or a bottle is convex all round. An object with concave parts (a drill's handle) comes
 // out in several segments; SceneRecogniser recognises the segments as well as the whole
 // cluster and lets the scene verification choose (recogniser/scene_recognition.h).
+// LCCP's grouping and its merging of small segments are PCL's steps, run here in the
+// supervoxels' label order: PCL walks its graph's vertices in address order, which made
+// the segments depend on the heap's layout (README, Tabletop scenes).
 // No PCL in this header.
 #pragma once
 

@@ -236,9 +236,7 @@ const std::vector<OptionField<RecognitionOptions>>& RecognitionOptions::Fields()
             .Flag("--grouping"),
         Field(&O::threads, "threads",
               "Threads of the pose screening and refinement, and of a table scene's clusters' "
-              "first recognitions (same answers for any count, but that a table scene's "
-              "convex splits, from PCL's supervoxels, can differ from run to run, most often "
-              "with two or more: README, Tabletop scenes)")
+              "first recognitions (the same answers for any count)")
             .AtLeast(1)
             .AtMost(64)
             .Flag("--pose-threads")};
