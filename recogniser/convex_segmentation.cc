@@ -49,28 +49,25 @@ std::map<uint32_t, uint32_t> GroupSupervoxels(
     const auto it = neighbours.find(label);
     return it == neighbours.end() ? kNone : it->second;
   };
+  // Grouping: the supervoxels joined by valid (convex) edges, a segment each (from 1;
+  // 0: not reached yet).
   std::map<uint32_t, uint32_t> sv_to_segment;
+  for (const uint32_t label : labels) sv_to_segment[label] = 0;
   std::map<uint32_t, std::set<uint32_t>> segment_to_svs;
-  std::map<uint32_t, bool> processed;
-  for (const uint32_t label : labels) {
-    processed[label] = false;
-    sv_to_segment[label] = 0;
-  }
-  // Grouping: the supervoxels joined by valid (convex) edges, a segment each (from 1).
   uint32_t segment = 1;
   std::vector<uint32_t> stack;
   for (const uint32_t label : labels) {
-    if (processed[label]) continue;
+    if (sv_to_segment[label] != 0) continue;
     stack.assign(1, label);
-    processed[label] = true;
+    sv_to_segment[label] = segment;
     while (!stack.empty()) {
       const uint32_t sv = stack.back();
       stack.pop_back();
-      sv_to_segment[sv] = segment;
       segment_to_svs[segment].insert(sv);
       for (const uint32_t other : neighbours_of(sv)) {
-        if (!processed[other] && valid.count({std::min(sv, other), std::max(sv, other)}) > 0) {
-          processed[other] = true;
+        if (sv_to_segment[other] == 0 &&
+            valid.count({std::min(sv, other), std::max(sv, other)}) > 0) {
+          sv_to_segment[other] = segment;
           stack.push_back(other);
         }
       }
