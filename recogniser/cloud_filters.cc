@@ -10,6 +10,7 @@
 #include <immintrin.h>
 
 #include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
 
 #include "core/error.h"
 
@@ -99,104 +100,179 @@ void SmallestSixteen(const uint64_t* in, size_t n, uint64_t* out) {
 
 namespace {
 
-// VoxelGridCentroids of the points `keep` returns true for.
-template <typename Keep>
+// The keys of a chunk of points (pass 1 of VoxelCentroidsOf): the packed voxel key of each
+// point kept, kSkippedKey for the others. Branch-free over the chunk (GCC vectorises it):
+// with `band`, a point is kept when finite and its squared norm (in double) is in
+// [min_sq, max_sq]; without, every point is kept and must be finite. Returns false when a
+// kept point's voxel lies outside the packed keys' range (or is not finite without `band`);
+// adds the chunk's finite and kept points to *finite and *kept.
+constexpr uint64_t kSkippedKey = ~uint64_t{0};  // PackKey uses 63 bits: never a key
+template <bool kBand>
+bool ChunkKeys(const float* __restrict xyz, int n, float inverse_leaf, double min_sq,
+               double max_sq, uint64_t* __restrict keys, int64_t* finite, int64_t* kept) {
+  constexpr float kFloatMax = std::numeric_limits<float>::max();
+  // floor(p · (1/leaf)) + offset must lie in [0, kAxisLimit): compared in float, where
+  // these bounds and every floor are exact integers.
+  constexpr float kLow = -static_cast<float>(kVoxelOffset);
+  constexpr float kHigh = static_cast<float>(kAxisLimit - kVoxelOffset);
+  int finite_count = 0, kept_count = 0, bad = 0;
+  for (int i = 0; i < n; ++i) {
+    const float x = xyz[3 * i], y = xyz[3 * i + 1], z = xyz[3 * i + 2];
+    const int is_finite = (std::abs(x) <= kFloatMax) & (std::abs(y) <= kFloatMax) &
+                          (std::abs(z) <= kFloatMax);
+    int keep = 1;
+    if constexpr (kBand) {
+      const double sq = static_cast<double>(x) * x + static_cast<double>(y) * y +
+                        static_cast<double>(z) * z;
+      keep = is_finite & (sq >= min_sq) & (sq <= max_sq);
+    }
+    // Cells by floor(p · (1/leaf)) (float, as PCL), in range when the product is in
+    // [kLow, kHigh) (a floor is ≥ an integer bound iff the product is). The floor from an
+    // int32 truncation, exact in that range; out of it the product is zeroed first (by its
+    // bits: GCC turns a select into a branch around the conversion and then does not
+    // vectorise), and the key becomes kSkippedKey (by an OR, for the same reason).
+    const float ax = x * inverse_leaf, ay = y * inverse_leaf, az = z * inverse_leaf;
+    const int in_range = (ax >= kLow) & (ax < kHigh) & (ay >= kLow) & (ay < kHigh) &
+                         (az >= kLow) & (az < kHigh);
+    const int ok = keep & in_range;
+    const uint32_t zero_unless_ok = 0u - static_cast<uint32_t>(ok);
+    const auto cell = [zero_unless_ok](float a) {
+      const float product =
+          __builtin_bit_cast(float, __builtin_bit_cast(uint32_t, a) & zero_unless_ok);
+      const int32_t t = static_cast<int32_t>(product);
+      return static_cast<uint32_t>(t - static_cast<int32_t>(static_cast<float>(t) > product) +
+                                   static_cast<int32_t>(kVoxelOffset));
+    };
+    keys[i] = PackKey(cell(ax), cell(ay), cell(az)) | (static_cast<uint64_t>(ok) - 1);
+    finite_count += is_finite;
+    kept_count += keep;
+    bad += keep & (in_range ^ 1);
+  }
+  *finite += finite_count;
+  *kept += kept_count;
+  return bad == 0;
+}
+
+// VoxelGridCentroids of the points kept (all, or with `band` those ChunkKeys keeps). Two
+// passes per chunk of points: their keys (vectorised), then the sums per voxel.
 std::vector<Eigen::Vector3f> VoxelCentroidsOf(const std::vector<Eigen::Vector3f>& points,
                                               float leaf, std::vector<uint32_t>* counts,
-                                              Keep&& keep) {
+                                              bool band, double min_sq, double max_sq,
+                                              int64_t* finite_points, int64_t* kept_points) {
   SOPE_CHECK(std::isfinite(leaf) && leaf > 0.0f, "voxel grid: leaf must be > 0 metres, got {}",
              leaf);
   if (counts != nullptr) counts->clear();
   if (points.empty()) return {};
   const float inverse_leaf = 1.0f / leaf;  // float, as pcl::VoxelGrid
 
-  struct Voxel {
+  // Open addressing, each slot a voxel (key, sums, count: one cache line per probe); an
+  // empty slot holds kSkippedKey, which no voxel has. At most half full.
+  struct Slot {
     uint64_t key;
-    double sum[3];
     uint32_t count;
+    double sum[3];
   };
-  std::vector<Voxel> voxels;
-  voxels.reserve(std::min<size_t>(points.size(), 4096));
   size_t capacity = NextPowerOfTwo(std::max<size_t>(1024, points.size() / 16));
-  std::vector<int32_t> table(capacity, -1);
-  std::vector<uint64_t> table_keys(capacity, 0);
-
-  auto rehash = [&](size_t new_capacity) {
-    capacity = new_capacity;
-    table.assign(capacity, -1);
-    table_keys.assign(capacity, 0);
-    for (size_t v = 0; v < voxels.size(); ++v) {
-      size_t slot = HashKey(voxels[v].key) & (capacity - 1);
-      while (table[slot] >= 0) slot = (slot + 1) & (capacity - 1);
-      table[slot] = static_cast<int32_t>(v);
-      table_keys[slot] = voxels[v].key;
+  std::vector<Slot> table(capacity, Slot{kSkippedKey, 0, {0.0, 0.0, 0.0}});
+  size_t occupied = 0;
+  // The slot of `key` (inserted empty if new).
+  auto find = [&](uint64_t key) {
+    size_t slot = HashKey(key) & (capacity - 1);
+    while (table[slot].key != key && table[slot].key != kSkippedKey) {
+      slot = (slot + 1) & (capacity - 1);
+    }
+    if (table[slot].key == kSkippedKey) {
+      table[slot].key = key;
+      ++occupied;
+    }
+    return &table[slot];
+  };
+  auto grow = [&] {
+    std::vector<Slot> old(2 * capacity, Slot{kSkippedKey, 0, {0.0, 0.0, 0.0}});
+    old.swap(table);
+    capacity *= 2;
+    occupied = 0;
+    for (const Slot& slot : old) {
+      if (slot.key != kSkippedKey) *find(slot.key) = slot;
     }
   };
 
   // Points in scan order fall into the voxel of the point before them most of the time:
   // the current voxel's sums stay in registers until the key changes (the same additions
   // in the same order, without a store → load chain per point).
-  uint64_t last_key = ~uint64_t{0};
-  int32_t last_voxel = -1;
+  uint64_t last_key = kSkippedKey;
+  Slot* current = nullptr;
   double sx = 0.0, sy = 0.0, sz = 0.0;
   uint32_t count = 0;
   auto store = [&] {
-    if (last_voxel < 0) return;
-    Voxel& v = voxels[last_voxel];
-    v.sum[0] = sx;
-    v.sum[1] = sy;
-    v.sum[2] = sz;
-    v.count = count;
+    if (current == nullptr) return;
+    current->sum[0] = sx;
+    current->sum[1] = sy;
+    current->sum[2] = sz;
+    current->count = count;
   };
-  for (const Eigen::Vector3f& p : points) {
-    if (!keep(p)) continue;
-    int64_t cell[3];
-    for (int a = 0; a < 3; ++a) {
-      const int64_t c = static_cast<int64_t>(std::floor(p[a] * inverse_leaf)) + kVoxelOffset;
-      SOPE_CHECK(c >= 0 && c < kAxisLimit,
-                 "voxel grid: point ({}, {}, {}) is more than 2^20 leaves ({} m) from the origin",
-                 p.x(), p.y(), p.z(), leaf);
-      cell[a] = c;
-    }
-    const uint64_t key = PackKey(cell[0], cell[1], cell[2]);
-    if (key != last_key) {
-      store();
-      int32_t voxel;
-      size_t slot = HashKey(key) & (capacity - 1);
-      while (table[slot] >= 0 && table_keys[slot] != key) slot = (slot + 1) & (capacity - 1);
-      if (table[slot] < 0) {
-        voxel = static_cast<int32_t>(voxels.size());
-        voxels.push_back(Voxel{key, {0.0, 0.0, 0.0}, 0});
-        table[slot] = voxel;
-        table_keys[slot] = key;
-        if (2 * voxels.size() > capacity) rehash(2 * capacity);
-      } else {
-        voxel = table[slot];
+  constexpr int kKeyChunk = 1024;
+  alignas(64) uint64_t keys[kKeyChunk];
+  const float* xyz = points.data()->data();
+  static_assert(sizeof(Eigen::Vector3f) == 3 * sizeof(float), "packed xyz");
+  int64_t finite = 0, kept = 0;
+  for (size_t begin = 0; begin < points.size(); begin += kKeyChunk) {
+    const int n = static_cast<int>(std::min<size_t>(kKeyChunk, points.size() - begin));
+    const bool in_range =
+        band ? ChunkKeys<true>(xyz + 3 * begin, n, inverse_leaf, min_sq, max_sq, keys, &finite,
+                               &kept)
+             : ChunkKeys<false>(xyz + 3 * begin, n, inverse_leaf, min_sq, max_sq, keys, &finite,
+                                &kept);
+    if (!in_range) {
+      for (int i = 0; i < n; ++i) {
+        const Eigen::Vector3f& p = points[begin + static_cast<size_t>(i)];
+        SOPE_CHECK(keys[i] != kSkippedKey || (band && !(IsFinitePoint(p) &&
+                                                         SquaredRangeBand{min_sq, max_sq}
+                                                             .Contains(p))),
+                   "voxel grid: point ({}, {}, {}) is more than 2^20 leaves ({} m) from the "
+                   "origin",
+                   p.x(), p.y(), p.z(), leaf);
       }
-      last_key = key;
-      last_voxel = voxel;
-      const Voxel& v = voxels[voxel];
-      sx = v.sum[0];
-      sy = v.sum[1];
-      sz = v.sum[2];
-      count = v.count;
     }
-    sx += p.x();
-    sy += p.y();
-    sz += p.z();
-    ++count;
+    for (int i = 0; i < n; ++i) {
+      const uint64_t key = keys[i];
+      if (key == kSkippedKey) continue;
+      if (key != last_key) {
+        store();
+        current = find(key);
+        if (2 * occupied > capacity) {
+          grow();
+          current = find(key);
+        }
+        last_key = key;
+        sx = current->sum[0];
+        sy = current->sum[1];
+        sz = current->sum[2];
+        count = current->count;
+      }
+      const float* p = xyz + 3 * (begin + static_cast<size_t>(i));
+      sx += p[0];
+      sy += p[1];
+      sz += p[2];
+      ++count;
+    }
   }
   store();
+  if (finite_points != nullptr) *finite_points = finite;
+  if (kept_points != nullptr) *kept_points = kept;
 
-  std::vector<int32_t> order(voxels.size());
-  std::iota(order.begin(), order.end(), 0);
-  std::sort(order.begin(), order.end(),
-            [&](int32_t a, int32_t b) { return voxels[a].key < voxels[b].key; });
+  // In key order (as PCL's VoxelGrid orders its voxels).
+  std::vector<std::pair<uint64_t, uint32_t>> order;
+  order.reserve(occupied);
+  for (size_t slot = 0; slot < capacity; ++slot) {
+    if (table[slot].key != kSkippedKey) order.emplace_back(table[slot].key, slot);
+  }
+  std::sort(order.begin(), order.end());
   std::vector<Eigen::Vector3f> centroids;
-  centroids.reserve(voxels.size());
-  if (counts != nullptr) counts->reserve(voxels.size());
-  for (int32_t v : order) {
-    const Voxel& voxel = voxels[v];
+  centroids.reserve(order.size());
+  if (counts != nullptr) counts->reserve(order.size());
+  for (const auto& [key, slot] : order) {
+    const Slot& voxel = table[slot];
     if (counts != nullptr) counts->push_back(voxel.count);
     const double inv = 1.0 / voxel.count;
     centroids.emplace_back(static_cast<float>(voxel.sum[0] * inv),
@@ -210,26 +286,14 @@ std::vector<Eigen::Vector3f> VoxelCentroidsOf(const std::vector<Eigen::Vector3f>
 
 std::vector<Eigen::Vector3f> VoxelGridCentroids(const std::vector<Eigen::Vector3f>& points,
                                                 float leaf, std::vector<uint32_t>* counts) {
-  return VoxelCentroidsOf(points, leaf, counts, [](const Eigen::Vector3f&) { return true; });
+  return VoxelCentroidsOf(points, leaf, counts, false, 0.0, 0.0, nullptr, nullptr);
 }
 
 std::vector<Eigen::Vector3f> VoxelGridCentroidsInBand(const std::vector<Eigen::Vector3f>& points,
                                                       float leaf, double min_sq, double max_sq,
                                                       std::vector<uint32_t>* counts,
                                                       int64_t* finite, int64_t* in_band) {
-  int64_t finite_points = 0, band_points = 0;
-  const SquaredRangeBand band{min_sq, max_sq};
-  std::vector<Eigen::Vector3f> centroids =
-      VoxelCentroidsOf(points, leaf, counts, [&](const Eigen::Vector3f& p) {
-        if (!IsFinitePoint(p)) return false;
-        ++finite_points;
-        if (!band.Contains(p)) return false;
-        ++band_points;
-        return true;
-      });
-  if (finite != nullptr) *finite = finite_points;
-  if (in_band != nullptr) *in_band = band_points;
-  return centroids;
+  return VoxelCentroidsOf(points, leaf, counts, true, min_sq, max_sq, finite, in_band);
 }
 
 // ---------------------------------------------------------------------------------------
@@ -631,6 +695,64 @@ std::vector<uint8_t> StatisticalInlierMask(const NeighbourTable& table, int mean
   return keep;
 }
 
+bool SmallestEigenpair(const Eigen::Matrix3d& covariance, double* value,
+                       Eigen::Vector3d* vector) {
+  const double trace = covariance.trace();
+  if (!(trace > 0.0) || !std::isfinite(trace)) return false;
+  // On A = C / trace (eigenvalues in [0, 1], summing to 1): the characteristic polynomial
+  // f(λ) = λ³ − λ² + c1·λ − c0 is increasing and concave below its smallest root (which is
+  // at most the mean eigenvalue, 1/3), so Newton's method from 0 rises to it monotonically;
+  // fast when the root is simple, as a surface's normal direction is.
+  const Eigen::Matrix3d a = covariance / trace;
+  const double c1 = a(0, 0) * a(1, 1) - a(0, 1) * a(0, 1) + a(0, 0) * a(2, 2) -
+                    a(0, 2) * a(0, 2) + a(1, 1) * a(2, 2) - a(1, 2) * a(1, 2);
+  const double c0 = a.determinant();
+  double lambda = 0.0;
+  bool converged = false;
+  for (int iteration = 0; iteration < 32; ++iteration) {
+    const double f = ((lambda - 1.0) * lambda + c1) * lambda - c0;
+    const double slope = (3.0 * lambda - 2.0) * lambda + c1;
+    if (!(slope > 0.0)) break;  // a double root (or rounding at one): not this method's
+    if (f >= 0.0) {             // at the root to rounding (or just past it, at 0: keep 0)
+      converged = true;
+      break;
+    }
+    const double next = lambda - f / slope;
+    if (next <= lambda * (1.0 + 4.0 * std::numeric_limits<double>::epsilon())) {
+      converged = true;
+      break;
+    }
+    lambda = next;
+  }
+  // The eigenvector: the largest cross product of two rows of A − λI (as Eigen's direct
+  // solver). Its norm is about (λ1 − λ)(λ2 − λ), the slope of f at the root: below 1e-4,
+  // λ near a double (or triple) root, which Newton's method approaches slowly and rounding
+  // stops short of, Eigen's direct solver takes over.
+  Eigen::Vector3d best = Eigen::Vector3d::Zero();
+  double best_norm = 0.0;
+  if (converged) {
+    const Eigen::Matrix3d shifted = a - lambda * Eigen::Matrix3d::Identity();
+    const Eigen::Vector3d r0 = shifted.row(0), r1 = shifted.row(1), r2 = shifted.row(2);
+    for (const Eigen::Vector3d& c : {r0.cross(r1), r0.cross(r2), r1.cross(r2)}) {
+      const double n = c.squaredNorm();
+      if (n > best_norm) {
+        best_norm = n;
+        best = c;
+      }
+    }
+  }
+  if (!(best_norm > 1e-8)) {
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver;
+    solver.computeDirect(covariance);
+    *value = solver.eigenvalues()[0];
+    *vector = solver.eigenvectors().col(0);
+    return vector->allFinite() && std::isfinite(*value);
+  }
+  *value = lambda * trace;
+  *vector = best / std::sqrt(best_norm);
+  return true;
+}
+
 bool FitNormal(const std::vector<Eigen::Vector3f>& points, const int32_t* neighbours, int count,
                const Eigen::Vector3f& point, const Eigen::Vector3f& viewpoint,
                Eigen::Vector3f* normal, float* curvature) {
@@ -647,16 +769,14 @@ bool FitNormal(const std::vector<Eigen::Vector3f>& points, const int32_t* neighb
     covariance.noalias() += d * d.transpose();
   }
   covariance /= count;
-  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver;
-  solver.computeDirect(covariance);
-  const Eigen::Vector3d eigenvalues = solver.eigenvalues();  // ascending
-  Eigen::Vector3d n = solver.eigenvectors().col(0);
+  double smallest;
+  Eigen::Vector3d n;
   const double trace = covariance.trace();
-  if (!n.allFinite() || !(trace > 0.0)) return false;
+  if (!SmallestEigenpair(covariance, &smallest, &n) || !(trace > 0.0)) return false;
   n.normalize();
   if ((viewpoint - point).cast<double>().dot(n) < 0.0) n = -n;
   *normal = n.cast<float>();
-  *curvature = static_cast<float>(std::abs(eigenvalues[0] / trace));
+  *curvature = static_cast<float>(std::abs(smallest / trace));
   return true;
 }
 

@@ -125,6 +125,12 @@ std::vector<uint8_t> StatisticalInlierMask(const NeighbourTable& table, int mean
                                            const std::vector<uint32_t>* weights = nullptr,
                                            double min_ratio = 0.0);
 
+// The smallest eigenvalue of the symmetric positive semi-definite 3×3 `covariance` and a
+// unit eigenvector of it (Newton's method on the characteristic polynomial, then the
+// eigenvector from cross products: no trigonometry; Eigen's direct solver where that
+// eigenvalue is not simple). Returns false when the trace is not positive and finite.
+bool SmallestEigenpair(const Eigen::Matrix3d& covariance, double* value, Eigen::Vector3d* vector);
+
 // Least-squares plane of the points `neighbours` (indices into `points`), as
 // pcl::NormalEstimation: unit normal = eigenvector of the smallest eigenvalue of the
 // neighbourhood covariance, flipped so that (viewpoint − point)·normal ≥ 0, and the surface

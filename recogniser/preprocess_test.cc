@@ -17,6 +17,8 @@
 #include <limits>
 #include <random>
 
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
 #include <gtest/gtest.h>
 #include <pcl/features/normal_3d.h>
 #include <pcl/filters/conditional_removal.h>
@@ -306,6 +308,37 @@ TEST(VoxelGrid, InBandEqualsTheGridOfTheFilteredPoints) {
   }
 }
 
+// Points beyond the packed keys' reach (2^20 leaves from the origin) or not finite are an
+// error where they would be gridded, and dropped silently where the band drops them.
+TEST(VoxelGrid, PointsOutOfReachAreAnErrorUnlessTheBandDropsThem) {
+  std::vector<Vector3f> points(3000, Vector3f(0.1f, 0.0f, 0.6f));
+  for (size_t i = 0; i < points.size(); ++i) points[i].x() += 0.0001f * static_cast<float>(i);
+  const float leaf = 0.004f;  // 2^20 leaves ≈ 4.2 km
+  std::vector<Vector3f> far = points;
+  far[2500] = Vector3f(0.1f, -5000.0f, 0.6f);
+  EXPECT_THROW_WITH_MESSAGE(internal::VoxelGridCentroids(far, leaf), Error, "2^20 leaves",
+                            "-5000");
+  std::vector<Vector3f> not_finite = points;
+  not_finite[1700].z() = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_THROW_WITH_MESSAGE(internal::VoxelGridCentroids(not_finite, leaf), Error,
+                            "2^20 leaves", "nan");
+  // In a band of 0.5–2 m: the far point and the NaN are dropped; a point in the band but
+  // out of reach (a leaf so small that 1 m is beyond 2^20 of them) is still an error.
+  for (const auto& [input, dropped] : {std::pair(&far, 2500), std::pair(&not_finite, 1700)}) {
+    std::vector<Vector3f> kept = points;
+    kept.erase(kept.begin() + dropped);
+    int64_t finite = 0, in_band = 0;
+    const std::vector<Vector3f> centroids = internal::VoxelGridCentroidsInBand(
+        *input, leaf, 0.25, 4.0, nullptr, &finite, &in_band);
+    EXPECT_EQ(in_band, 2999);
+    EXPECT_EQ(finite, input == &far ? 3000 : 2999);
+    EXPECT_EQ(centroids, internal::VoxelGridCentroids(kept, leaf));
+  }
+  EXPECT_THROW_WITH_MESSAGE(
+      internal::VoxelGridCentroidsInBand(points, 1e-7f, 0.25, 4.0, nullptr, nullptr, nullptr),
+      Error, "2^20 leaves", "0.6");
+}
+
 TEST(NeighbourGrid, AllKNearestEqualsBruteForce) {
   std::mt19937 rng(11);
   std::normal_distribution<float> normal(0.0f, 1.0f);
@@ -466,6 +499,54 @@ TEST(Normals, MatchPclNormalEstimation) {
   }
   EXPECT_LT(worst_angle, 1e-3);  // radians; PCL accumulates in float
   EXPECT_LT(worst_curvature, 1e-4);
+}
+
+// The normal fit's eigen solver against Eigen's iterative one (QR, the accurate
+// reference) on covariances of every shape a neighbourhood takes: planes from flat to
+// thick, at scales from 0.1 mm to 1 m, lines (a double smallest eigenvalue: the fallback),
+// isotropic blobs (a triple one), exact planes (smallest eigenvalue 0) and a zero matrix.
+TEST(Normals, SmallestEigenpairMatchesEigenAcrossShapes) {
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<double> unit(-1.0, 1.0);
+  int newton_cases = 0;
+  for (int trial = 0; trial < 4000; ++trial) {
+    const Eigen::Matrix3d rotation =
+        Eigen::Quaterniond(Eigen::Vector4d(unit(rng), unit(rng), unit(rng), unit(rng)).normalized())
+            .toRotationMatrix();
+    const double scale = std::pow(10.0, -4.0 + 4.0 * (trial % 97) / 96.0);  // 0.1 mm … 1 m
+    Eigen::Vector3d spread;
+    switch (trial % 5) {
+      case 0: spread = Vector3d(1.0, 0.6, std::pow(10.0, -1.0 - 5.0 * (trial % 11) / 10.0)); break;
+      case 1: spread = Vector3d(1.0, 1e-7, 1e-7); break;  // a line
+      case 2: spread = Vector3d(1.0, 1.0, 1.0); break;    // isotropic
+      case 3: spread = Vector3d(1.0, 0.9, 0.0); break;    // an exact plane
+      default: spread = Vector3d(1.0, 0.3 + 0.5 * std::abs(unit(rng)), 0.05); break;
+    }
+    const Eigen::Matrix3d covariance =
+        scale * scale * rotation * spread.cwiseAbs2().asDiagonal() * rotation.transpose();
+    double value = 0.0;
+    Eigen::Vector3d vector;
+    ASSERT_TRUE(internal::SmallestEigenpair(covariance, &value, &vector)) << "trial " << trial;
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> reference(covariance);
+    const double trace = covariance.trace();
+    // Everywhere within Eigen's direct solver's accuracy (the fallback's, and what the
+    // normals used before); where the smallest eigenvalue is well apart (Newton's case:
+    // (λ1 − λ0)(λ2 − λ0) > 1e-4 of the trace², and where the direction is defined) to
+    // 1e-12 of the trace, the direction to 1e-9.
+    EXPECT_NEAR(value / trace, reference.eigenvalues()[0] / trace, 1e-8) << "trial " << trial;
+    EXPECT_NEAR(vector.norm(), 1.0, 1e-12) << "trial " << trial;
+    const Eigen::Vector3d e = reference.eigenvalues() / trace;
+    if ((e[1] - e[0]) * (e[2] - e[0]) > 1e-3) {
+      ++newton_cases;
+      EXPECT_NEAR(value / trace, e[0], 1e-12) << "trial " << trial;
+      const double sine = vector.cross(reference.eigenvectors().col(0)).norm();
+      EXPECT_LT(sine, 1e-9) << "trial " << trial << ", eigenvalues " << e.transpose();
+    }
+  }
+  EXPECT_GT(newton_cases, 2000);
+  double value = 0.0;
+  Eigen::Vector3d vector;
+  EXPECT_FALSE(internal::SmallestEigenpair(Eigen::Matrix3d::Zero(), &value, &vector));
 }
 
 // ---------------------------------------------------------------------------------------
