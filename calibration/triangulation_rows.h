@@ -170,7 +170,10 @@ inline int EmitRow(const RowInputs& in, int y, const int* __restrict xs,
     const int count = in.x_end - x < 16 ? in.x_end - x : 16;
     const __mmask16 tail = static_cast<__mmask16>((1u << count) - 1u);
     const __mmask16 keep = CandidateLanes(in, x, tail);
-    _mm512_mask_storeu_ps(depth + x, tail, _mm512_mask_expandloadu_ps(nan, keep, z_or_nan + next));
+    // A plain load and the register form of expand: the memory form is slow on AMD's
+    // Zen 4 (as compress to memory is).
+    _mm512_mask_storeu_ps(depth + x, tail,
+                          _mm512_mask_expand_ps(nan, keep, _mm512_loadu_ps(z_or_nan + next)));
     next += __builtin_popcount(keep);
   }
   // Points and pixels: compress the accepted lanes, interleave to xyz / (x, y).
