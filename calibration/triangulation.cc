@@ -272,9 +272,11 @@ size_t Triangulator::TableBytes() const {
 
 namespace {
 
-// Candidates are processed in chunks of this many: the chunk's working arrays (~40 kB)
-// stay in L1 (with the row arrays and the streamed tables).
-constexpr int kChunk = 64;
+// Candidates are processed in chunks of this many: the chunk's working arrays (~30 kB)
+// stay in L1/L2 with the row arrays. 128 measured 2–3% faster than 64 on the midpoint (AMD
+// EPYC VM; 256 no better): fewer per-chunk set-ups (the AVX-512 kernel broadcasts ~40
+// constants per call).
+constexpr int kChunk = 128;
 
 }  // namespace
 
