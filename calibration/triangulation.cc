@@ -644,8 +644,7 @@ void TwoAxisKernel(int n, const float* __restrict ray_x, const float* __restrict
     MidpointReprojectAvx512<kRational>(n, ray_x, ray_y, coded_u, coded_v, proj_ray_x, proj_ray_y,
                                        pose, lens_in, max_px, min_depth, max_depth, out_x, out_y,
                                        out_z, ok);
-    return;
-#endif
+#else
     // The midpoint and its reprojection in one loop, with one division: the point scaled
     // by the denominator D = a·e − b² is X' = ½(S·d_c + D·C_p + U·d_p) (S, U the
     // numerators of s, u) and its projector depth z' = r₃·X' + D·t_z = D·z_p; with
@@ -681,6 +680,7 @@ void TwoAxisKernel(int n, const float* __restrict ray_x, const float* __restrict
       out_z[i] = static_cast<float>(z);
       ok[i] = accept & (z >= min_depth) & (z <= max_depth);
     }
+#endif
     return;
   } else if constexpr (!kLinear) {
     const double c0 = pose.center_in_cam[0], c1 = pose.center_in_cam[1],

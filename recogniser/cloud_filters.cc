@@ -771,12 +771,12 @@ bool FitNormal(const std::vector<Eigen::Vector3f>& points, const int32_t* neighb
   covariance /= count;
   double smallest;
   Eigen::Vector3d n;
-  const double trace = covariance.trace();
-  if (!SmallestEigenpair(covariance, &smallest, &n) || !(trace > 0.0)) return false;
+  // False for a trace not positive and finite, or a non-finite fallback result.
+  if (!SmallestEigenpair(covariance, &smallest, &n)) return false;
   n.normalize();
   if ((viewpoint - point).cast<double>().dot(n) < 0.0) n = -n;
   *normal = n.cast<float>();
-  *curvature = static_cast<float>(std::abs(smallest / trace));
+  *curvature = static_cast<float>(std::abs(smallest / covariance.trace()));
   return true;
 }
 
