@@ -1,6 +1,9 @@
 #include "recogniser/database.h"
 
 #include <fcntl.h>
+#if defined(__AVX512F__)
+#include <immintrin.h>
+#endif
 #include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -10,6 +13,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <mutex>
 #include <type_traits>
 
 #include <nlohmann/json.hpp>
@@ -568,6 +572,9 @@ struct Database::Impl {
   const float* fine = nullptr;
   const CloudPointOnDisk* clouds = nullptr;
   int cloud_stride = 0;
+  // Made on first use (view_sketches()).
+  mutable std::once_flag sketches_once;
+  mutable ViewSketches sketches;
 };
 
 namespace {
@@ -976,6 +983,130 @@ void Database::ViewCloud(int view, PointCloud* cloud) const {
     cloud->normals[i] =
         Eigen::Vector3f(in[i].normal[0], in[i].normal[1], in[i].normal[2]).normalized();
   }
+}
+
+namespace {
+
+// The quantised value of `code`: offset + code · step as one fused multiply-add (the same
+// value in Quantise's errors and in the distances, scalar or vector).
+inline float Dequantised(uint8_t code, const ViewSketches::Row& row) {
+  return std::fma(static_cast<float>(code), row.step, row.offset);
+}
+
+#if defined(__AVX512F__)
+inline __m256 UpperHalf(__m512 v) {
+  return _mm256_castsi256_ps(_mm512_extracti64x4_epi64(_mm512_castps_si512(v), 1));
+}
+#endif
+
+}  // namespace
+
+ViewSketches::Row ViewSketches::Quantise(const float* values, int dims, uint8_t* codes) {
+  Row row;
+  if (dims <= 0) return row;
+  const auto [least, greatest] = std::minmax_element(values, values + dims);
+  row.offset = *least;
+  row.step = (*greatest - *least) / 255.0f;
+  const float inverse_step = row.step > 0.0f ? 1.0f / row.step : 0.0f;
+  double l1 = 0.0, l2 = 0.0;
+  int d = 0;
+#if defined(__AVX512F__)
+  // 16 dimensions a step; the errors in double (a float minus its quantised value is
+  // exact there), summed per lane.
+  const __m512 offset = _mm512_set1_ps(row.offset), step = _mm512_set1_ps(row.step);
+  const __m512 inverse = _mm512_set1_ps(inverse_step);
+  __m512d sum1[2] = {_mm512_setzero_pd(), _mm512_setzero_pd()};
+  __m512d sum2[2] = {_mm512_setzero_pd(), _mm512_setzero_pd()};
+  for (; d + 16 <= dims; d += 16) {
+    const __m512 value = _mm512_loadu_ps(values + d);
+    const __m512 nearest =
+        _mm512_fmadd_ps(_mm512_sub_ps(value, offset), inverse, _mm512_set1_ps(0.5f));
+    const __m512 scaled = _mm512_min_ps(_mm512_max_ps(nearest, _mm512_setzero_ps()),
+                                        _mm512_set1_ps(255.0f));
+    const __m512i code = _mm512_cvttps_epi32(scaled);
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(codes + d), _mm512_cvtepi32_epi8(code));
+    const __m512 rebuilt = _mm512_fmadd_ps(_mm512_cvtepi32_ps(code), step, offset);
+    for (int half = 0; half < 2; ++half) {
+      const __m256 v = half ? UpperHalf(value) : _mm512_castps512_ps256(value);
+      const __m256 r = half ? UpperHalf(rebuilt) : _mm512_castps512_ps256(rebuilt);
+      const __m512d error = _mm512_sub_pd(_mm512_cvtps_pd(v), _mm512_cvtps_pd(r));
+      sum1[half] = _mm512_add_pd(sum1[half], _mm512_abs_pd(error));
+      sum2[half] = _mm512_fmadd_pd(error, error, sum2[half]);
+    }
+  }
+  l1 = _mm512_reduce_add_pd(_mm512_add_pd(sum1[0], sum1[1]));
+  l2 = _mm512_reduce_add_pd(_mm512_add_pd(sum2[0], sum2[1]));
+#endif
+  for (; d < dims; ++d) {
+    // Any code will do (the error below is that of the code chosen): the nearest one.
+    codes[d] = static_cast<uint8_t>(
+        std::clamp((values[d] - row.offset) * inverse_step + 0.5f, 0.0f, 255.0f));
+    const double error = static_cast<double>(values[d]) - Dequantised(codes[d], row);
+    l1 += std::abs(error);
+    l2 += error * error;
+  }
+  // Rounded up a little: the sums' own rounding (double) must not make them too small.
+  row.l1_error = l1 * (1.0 + 1e-9);
+  row.l2_error = std::sqrt(l2) * (1.0 + 1e-9);
+  return row;
+}
+
+namespace {
+
+// Σ|â − b| (kSquared false) or Σ(â − b)² of a quantised row against `b`, in float.
+template <bool kSquared>
+float QuantisedDistance(const uint8_t* codes, const ViewSketches::Row& row, const float* b,
+                        int dims) {
+  int d = 0;
+  float sum = 0.0f;
+#if defined(__AVX512F__)
+  const __m512 step = _mm512_set1_ps(row.step), offset = _mm512_set1_ps(row.offset);
+  // Two chains of additions, 16 dimensions each.
+  __m512 acc[2] = {_mm512_setzero_ps(), _mm512_setzero_ps()};
+  for (; d + 16 <= dims; d += 16) {
+    const __m512 code = _mm512_cvtepi32_ps(
+        _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(codes + d))));
+    const __m512 diff =
+        _mm512_sub_ps(_mm512_fmadd_ps(code, step, offset), _mm512_loadu_ps(b + d));
+    __m512& chain = acc[(d >> 4) & 1];
+    chain = kSquared ? _mm512_fmadd_ps(diff, diff, chain)
+                     : _mm512_add_ps(chain, _mm512_abs_ps(diff));
+  }
+  sum = _mm512_reduce_add_ps(_mm512_add_ps(acc[0], acc[1]));
+#endif
+  for (; d < dims; ++d) {
+    const float e = Dequantised(codes[d], row) - b[d];
+    sum += kSquared ? e * e : std::abs(e);
+  }
+  return sum;
+}
+
+}  // namespace
+
+float ViewSketches::L1To(const uint8_t* codes, const Row& row, const float* b, int dims) {
+  return QuantisedDistance<false>(codes, row, b, dims);
+}
+
+float ViewSketches::SquaredL2To(const uint8_t* codes, const Row& row, const float* b, int dims) {
+  return QuantisedDistance<true>(codes, row, b, dims);
+}
+
+const ViewSketches& Database::view_sketches() const {
+  std::call_once(impl_->sketches_once, [this] {
+    ViewSketches& s = impl_->sketches;
+    const size_t views = static_cast<size_t>(num_views());
+    const int cd = impl_->coarse_dim, fd = impl_->fine_dim;
+    s.coarse_codes.resize(views * cd);
+    s.fine_codes.resize(views * fd);
+    s.coarse_rows.resize(views);
+    s.fine_rows.resize(views);
+    for (size_t v = 0; v < views; ++v) {
+      const int view = static_cast<int>(v);
+      s.coarse_rows[v] = ViewSketches::Quantise(coarse(view), cd, &s.coarse_codes[v * cd]);
+      s.fine_rows[v] = ViewSketches::Quantise(fine(view), fd, &s.fine_codes[v * fd]);
+    }
+  });
+  return impl_->sketches;
 }
 
 PointCloud Database::ViewCloud(int view) const {

@@ -212,6 +212,27 @@ struct DatabaseOpenOptions {
   bool verify_mapped_sections = true;
 };
 
+// Each view's coarse and fine rows quantised to a byte per dimension (value ≈ offset +
+// code · step, 256 steps between the row's least and greatest value) with the exact
+// error that leaves: by the triangle inequality Σ|a − b| ≥ Σ|â − b| − Σ|a − â| and
+// ‖a − b‖ ≥ ‖â − b‖ − ‖a − â‖, lower bounds on the fine stage's distances from a quarter
+// of the bytes (the widened search ranks every view of the database: recogniser/stages.h
+// LazyViewRanking).
+struct ViewSketches {
+  struct Row {
+    float offset = 0.0f, step = 0.0f;
+    double l1_error = 0.0, l2_error = 0.0;  // Σ|a − â|, ‖a − â‖
+  };
+  std::vector<uint8_t> coarse_codes, fine_codes;  // view-major, coarse_dim / fine_dim each
+  std::vector<Row> coarse_rows, fine_rows;        // per view
+
+  // Quantises `dims` values into `codes`.
+  static Row Quantise(const float* row, int dims, uint8_t* codes);
+  // Σ|â − b| and ‖â − b‖² of a quantised row against `b`, in float.
+  static float L1To(const uint8_t* codes, const Row& row, const float* b, int dims);
+  static float SquaredL2To(const uint8_t* codes, const Row& row, const float* b, int dims);
+};
+
 // An opened database file: small sections in memory, large ones memory-mapped. Immutable;
 // all accessors are const and safe to call from several threads.
 class Database {
@@ -251,6 +272,9 @@ class Database {
   // Decodes the view's stored cloud (model frame, metres, unit normals) into `cloud`.
   void ViewCloud(int view, PointCloud* cloud) const;
   PointCloud ViewCloud(int view) const;
+  // Every view's coarse and fine rows quantised (ViewSketches), made on the first call
+  // (one pass over the mapped rows) and kept; safe from several threads.
+  const ViewSketches& view_sketches() const;
 
   // Standardised coarse vector of raw coarse features (same layout as coarse()).
   Eigen::VectorXf Standardise(const Eigen::VectorXf& coarse) const;

@@ -2,6 +2,7 @@
 
 #include <sys/stat.h>
 
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <functional>
@@ -225,6 +226,61 @@ TEST(Database, RoundTripEqualsWhatWasWritten) {
   // The same file when written again (deterministic writer).
   WriteDatabase(scratch.File("again.sopedb"), data);
   EXPECT_EQ(ReadBytes(path), ReadBytes(scratch.File("again.sopedb")));
+}
+
+// The quantised rows (ViewSketches) bound the distances from below: for any row b,
+// L1To − l1_error ≤ Σ|a − b| and √SquaredL2To − l2_error ≤ ‖a − b‖, with the errors those
+// of the codes (rows of every sign and scale, a constant row, lengths not a multiple of
+// the vector width); and an opened database's sketches are those of its rows.
+TEST(ViewSketches, QuantisedRowsBoundTheDistancesFromBelow) {
+  std::mt19937 rng(7);
+  for (const int dims : {1, 15, 16, 37, 308}) {
+    for (int trial = 0; trial < 40; ++trial) {
+      const float scale = std::pow(10.0f, std::uniform_real_distribution<float>(-4, 2)(rng));
+      std::normal_distribution<float> value(trial % 3 == 0 ? 1.0f : 0.0f, scale);
+      std::vector<float> a(dims), b(dims);
+      for (int d = 0; d < dims; ++d) {
+        a[d] = trial == 5 ? 0.25f : value(rng);  // trial 5: a constant row (step 0)
+        b[d] = value(rng);
+      }
+      std::vector<uint8_t> codes(dims);
+      const ViewSketches::Row row = ViewSketches::Quantise(a.data(), dims, codes.data());
+      double l1 = 0.0, l2 = 0.0, error1 = 0.0, error2 = 0.0;
+      for (int d = 0; d < dims; ++d) {
+        l1 += std::abs(static_cast<double>(a[d]) - b[d]);
+        l2 += std::pow(static_cast<double>(a[d]) - b[d], 2);
+        const double rebuilt = std::fma(static_cast<float>(codes[d]), row.step, row.offset);
+        error1 += std::abs(a[d] - rebuilt);
+        error2 += std::pow(a[d] - rebuilt, 2);
+      }
+      EXPECT_NEAR(row.l1_error, error1, 1e-6 * error1 + 1e-12);
+      EXPECT_NEAR(row.l2_error, std::sqrt(error2), 1e-6 * std::sqrt(error2) + 1e-12);
+      EXPECT_LE(row.l1_error, dims * 0.5001 * row.step + 1e-12);  // the nearest code
+      const double quantised1 = ViewSketches::L1To(codes.data(), row, b.data(), dims);
+      const double quantised2 = ViewSketches::SquaredL2To(codes.data(), row, b.data(), dims);
+      EXPECT_LE(quantised1 * (1 - 1e-4) - row.l1_error, l1) << dims << " " << trial;
+      EXPECT_LE(std::sqrt(quantised2 * (1 - 1e-4)) - row.l2_error, std::sqrt(l2))
+          << dims << " " << trial;
+      // Tight: within the quantisation error of the exact distance.
+      EXPECT_GE(quantised1 - row.l1_error, l1 - 2 * row.l1_error - 1e-4 * l1 - 1e-9);
+    }
+  }
+  testing::ScratchDir scratch;
+  const DatabaseData data = MakeSyntheticData(1);
+  const std::string path = scratch.File("small.sopedb");
+  WriteDatabase(path, data);
+  const std::unique_ptr<Database> db = Database::Open(path);
+  const ViewSketches& sketches = db->view_sketches();
+  ASSERT_EQ(sketches.fine_rows.size(), static_cast<size_t>(db->num_views()));
+  ASSERT_EQ(sketches.coarse_codes.size(), static_cast<size_t>(db->num_views() * 12));
+  for (int v = 0; v < db->num_views(); ++v) {
+    std::vector<uint8_t> codes(20);
+    const ViewSketches::Row row = ViewSketches::Quantise(db->fine(v), 20, codes.data());
+    EXPECT_EQ(std::memcmp(codes.data(), &sketches.fine_codes[v * 20], 20), 0);
+    EXPECT_EQ(row.offset, sketches.fine_rows[v].offset);
+    EXPECT_EQ(row.step, sketches.fine_rows[v].step);
+  }
+  EXPECT_EQ(&db->view_sketches(), &sketches);  // made once
 }
 
 TEST(Database, SectionsArePageAligned) {

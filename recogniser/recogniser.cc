@@ -355,7 +355,9 @@ std::string RecognitionResultToJson(const RecognitionResult& result) {
   return j.dump();
 }
 
-Recogniser::Recogniser(const Database& database) : database_(database) {}
+Recogniser::Recogniser(const Database& database) : database_(database) {
+  database.view_sketches();  // the widened search's quantised rows, made once per database
+}
 
 RecognitionResult Recogniser::Recognise(const PointCloud& cloud,
                                         const RecognitionOptions& options) const {

@@ -155,6 +155,45 @@ TEST_F(RecogniserTest, RecognisesModelsAndPosesFromOffGridViews) {
   EXPECT_LT(Median(center_errors), 0.003);
 }
 
+// The widened search's lazy ranking (LazyViewRanking: views bounded by their block sums,
+// measured only when needed) gives every model's views in the order and with the
+// distances of sorting AllViewsOf (flagged views as ranked, with the polar-signature term;
+// the others measured), field for field — and ranking only each model's best view
+// measures fewer views than there are.
+TEST_F(RecogniserTest, LazyViewRankingOrdersViewsAsSortingAllViewsOf) {
+  for (const Query& q : MakeQueries(2, 31)) {
+    const ViewDescription query = DescribeQuery(*db_, q.query.cloud);
+    const RecognitionOptions options;
+    const CoarseResult coarse = CoarseStage(*db_, query, options);
+    StageContext context(*db_, query, coarse);
+    const FineResult fine = FineStage(&context, options);
+    ASSERT_FALSE(fine.ranked.empty());
+    LazyViewRanking best_only(context, fine, options.fine);
+    for (int m = 0; m < db_->num_models(); ++m) ASSERT_NE(best_only.At(m, 0), nullptr);
+    const int unflagged = db_->num_views() - static_cast<int>(fine.ranked.size());
+    EXPECT_LT(best_only.measured(), unflagged / 2);
+
+    LazyViewRanking ranking(context, fine, options.fine);
+    for (int m = 0; m < db_->num_models(); ++m) {
+      std::vector<RankedView> views = AllViewsOf(context, fine, m, options.fine);
+      std::sort(views.begin(), views.end(), RankedBefore);
+      for (int k = 0; k < static_cast<int>(views.size()); ++k) {
+        const RankedView* r = ranking.At(m, k);
+        ASSERT_NE(r, nullptr) << m << " " << k;
+        EXPECT_EQ(r->view, views[k].view) << m << " " << k;
+        EXPECT_EQ(r->hamming, views[k].hamming);
+        EXPECT_EQ(r->fine, views[k].fine);
+        EXPECT_EQ(r->coarse, views[k].coarse);
+        EXPECT_EQ(r->size, views[k].size);
+        EXPECT_EQ(r->combined, views[k].combined);
+        EXPECT_EQ(r->fine_rank, views[k].fine_rank);
+      }
+      EXPECT_EQ(ranking.At(m, static_cast<int>(views.size())), nullptr);
+    }
+    EXPECT_EQ(ranking.measured(), unflagged);
+  }
+}
+
 TEST_F(RecogniserTest, PoseOnlyWithTheModelKnown) {
   // Thesis §5's pose-only test: the class (here the model) is given.
   const std::vector<Query> queries = MakeQueries(16, 77);

@@ -33,13 +33,17 @@ namespace {
 
 // The views of one model that get hypotheses: ranked, up to `count` at least
 // `min_separation_cos` apart (neighbouring views would converge to the same pose).
-std::vector<RankedView> SeparatedViews(const Database& db, std::vector<RankedView> views,
+// `view_at(k)` gives the k-th view in ranking order, null past the last.
+std::vector<RankedView> SeparatedViews(const Database& db,
+                                       const std::function<const RankedView*(int)>& view_at,
                                        int count, double min_separation_cos) {
-  std::sort(views.begin(), views.end(), RankedBefore);
   std::vector<RankedView> chosen;
   std::vector<Eigen::Vector3d> directions;
-  for (const RankedView& r : views) {
+  for (int k = 0;; ++k) {
     if (static_cast<int>(directions.size()) >= count) break;
+    const RankedView* at = view_at(k);
+    if (at == nullptr) break;
+    const RankedView r = *at;
     const Eigen::Vector3d direction = db.view(r.view).viewpoint.Direction();
     bool near = false;
     for (const Eigen::Vector3d& d : directions) near |= d.dot(direction) > min_separation_cos;
@@ -416,6 +420,97 @@ std::vector<RankedView> AllViewsOf(const StageContext& context, const FineResult
   return views;
 }
 
+LazyViewRanking::LazyViewRanking(const StageContext& context, const FineResult& fine,
+                                 const FineOptions& options)
+    : context_(context),
+      fine_(fine),
+      options_(options),
+      flagged_(context.db().num_views(), -1),
+      models_(context.db().num_models()) {
+  for (size_t i = 0; i < fine.ranked.size(); ++i) {
+    flagged_[fine.ranked[i].view] = static_cast<int>(i);
+  }
+  context.db().view_sketches();  // made once per database
+}
+
+double LazyViewRanking::LowerBound(int view) const {
+  // Measure: combined = w_f · Σ|a − b| / s_f + w_c · ‖a − b‖ / s_c + w_s · size / s_s, each
+  // term ≥ 0 with weights ≥ 0; the size term is left out (a log per view).
+  if (options_.fine_weight < 0.0 || options_.coarse_weight < 0.0 ||
+      options_.size_weight < 0.0) {
+    return -std::numeric_limits<double>::infinity();
+  }
+  const Database& db = context_.db();
+  const ViewSketches& sketches = db.view_sketches();
+  const DistanceScales& scales = db.distance_scales();
+  const int coarse_dim = db.coarse_dim(), fine_dim = db.fine_dim();
+  const size_t v = static_cast<size_t>(view);
+  const ViewSketches::Row& fine_row = sketches.fine_rows[v];
+  const ViewSketches::Row& coarse_row = sketches.coarse_rows[v];
+  // Each float sum less 1e-4 of it (its rounding stays below ~2e-5 of it over a few hundred
+  // terms ≥ 0) is at most the exact distance to the quantised row; less the quantisation
+  // error, at most the distance to the row (triangle inequality); the whole less 1e-4 of
+  // it, at most what Measure computes in float.
+  const double fine_bound =
+      ViewSketches::L1To(&sketches.fine_codes[v * fine_dim], fine_row,
+                         context_.query().features.fine.data(), fine_dim) *
+          (1.0 - 1e-4) -
+      fine_row.l1_error;
+  const double coarse_bound =
+      std::sqrt(ViewSketches::SquaredL2To(&sketches.coarse_codes[v * coarse_dim], coarse_row,
+                                          context_.coarse().coarse.data(), coarse_dim) *
+                (1.0 - 1e-4)) -
+      coarse_row.l2_error;
+  const double bound = options_.fine_weight * std::max(0.0, fine_bound) / scales.fine +
+                       options_.coarse_weight * std::max(0.0, coarse_bound) / scales.coarse;
+  // A row with NaN (not checked at open) gives no bound.
+  if (std::isnan(bound)) return -std::numeric_limits<double>::infinity();
+  return bound * (1.0 - 1e-4) - 1e-9;
+}
+
+void LazyViewRanking::Start(int model_index) {
+  ModelViews& m = models_[model_index];
+  m.started = true;
+  const ModelRecord& model = context_.db().model(model_index);
+  const auto later = [](const RankedView& a, const RankedView& b) { return RankedBefore(b, a); };
+  for (int v = model.first_view; v < model.first_view + model.num_views; ++v) {
+    if (flagged_[v] >= 0) {
+      m.pending.push_back(fine_.ranked[flagged_[v]]);
+      std::push_heap(m.pending.begin(), m.pending.end(), later);
+    } else {
+      m.bounds.emplace_back(LowerBound(v), v);
+    }
+  }
+  // A heap, least bound on top: most models are asked only for their first views.
+  std::make_heap(m.bounds.begin(), m.bounds.end(), std::greater<>());
+}
+
+const RankedView* LazyViewRanking::At(int model, int k) {
+  ModelViews& m = models_[model];
+  if (!m.started) Start(model);
+  const auto later = [](const RankedView& a, const RankedView& b) { return RankedBefore(b, a); };
+  while (static_cast<int>(m.ranked.size()) <= k) {
+    const bool bounds_left = !m.bounds.empty();
+    // The first measured view is placed once no view left unmeasured can come before it:
+    // each of those is at least its bound, the least of them on top of m.bounds.
+    if (!m.pending.empty() &&
+        (!bounds_left || m.pending.front().combined < m.bounds.front().first)) {
+      std::pop_heap(m.pending.begin(), m.pending.end(), later);
+      m.ranked.push_back(m.pending.back());
+      m.pending.pop_back();
+      continue;
+    }
+    if (!bounds_left) return nullptr;
+    std::pop_heap(m.bounds.begin(), m.bounds.end(), std::greater<>());
+    const int v = m.bounds.back().second;
+    m.bounds.pop_back();
+    m.pending.push_back(context_.Measure(v, context_.HammingTo(v), options_));
+    std::push_heap(m.pending.begin(), m.pending.end(), later);
+    ++measured_;
+  }
+  return &m.ranked[k];
+}
+
 ScreeningRequest PlanScreening(const StageContext& context, const FineResult& fine,
                                const RecognitionOptions& options) {
   const ScreeningOptions& screening = options.screening;
@@ -453,15 +548,22 @@ std::vector<PoseCandidate> ScreenPoses(StageContext* context, const FineResult& 
   std::vector<std::pair<int, RankedView>> jobs;  // model, view
   for (int model_index : request.models) {
     std::vector<RankedView> views;
-    if (request.rank_all_views) {
-      views = AllViewsOf(*context, fine, model_index, options.fine);
+    std::function<const RankedView*(int)> view_at;
+    if (request.rank_all_views && request.ranking != nullptr) {
+      view_at = [&](int k) { return request.ranking->At(model_index, k); };
     } else {
-      for (const RankedView& r : fine.ranked) {
-        if (db.view(r.view).model == model_index) views.push_back(r);
+      if (request.rank_all_views) {
+        views = AllViewsOf(*context, fine, model_index, options.fine);
+      } else {
+        for (const RankedView& r : fine.ranked) {
+          if (db.view(r.view).model == model_index) views.push_back(r);
+        }
       }
+      std::sort(views.begin(), views.end(), RankedBefore);
+      view_at = [&](int k) { return k < static_cast<int>(views.size()) ? &views[k] : nullptr; };
     }
     for (const RankedView& r :
-         SeparatedViews(db, std::move(views), request.views_per_model, min_separation_cos)) {
+         SeparatedViews(db, view_at, request.views_per_model, min_separation_cos)) {
       jobs.emplace_back(model_index, r);
     }
   }
@@ -577,12 +679,11 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
     pool.resize(db.num_models());
     std::iota(pool.begin(), pool.end(), 0);
   }
+  LazyViewRanking ranking(*context, fine, options.fine);
   for (int m : pool) {
-    double best = std::numeric_limits<double>::infinity();
-    for (const RankedView& r : AllViewsOf(*context, fine, m, options.fine)) {
-      best = std::min(best, r.combined);
-    }
-    model_distance.emplace_back(best, m);
+    const RankedView* best = ranking.At(m, 0);
+    model_distance.emplace_back(best ? best->combined : std::numeric_limits<double>::infinity(),
+                                m);
   }
   std::sort(model_distance.begin(), model_distance.end());
   ScreeningRequest request;
@@ -592,6 +693,7 @@ std::vector<PoseCandidate> WidenSearch(StageContext* context, const FineResult& 
   }
   request.views_per_model = std::max(views_per_model, widening.views_per_model);
   request.rank_all_views = true;
+  request.ranking = &ranking;
   request.hypotheses = options.pose;
   request.hypotheses.roll_hypotheses =
       std::min(std::max(options.pose.roll_hypotheses, widening.roll_hypotheses),

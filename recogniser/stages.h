@@ -122,6 +122,42 @@ FineResult FineStage(StageContext* context, const RecognitionOptions& options);
 std::vector<RankedView> AllViewsOf(const StageContext& context, const FineResult& fine,
                                    int model, const FineOptions& options);
 
+// Every model's views in ranking order (RankedBefore) with the distances AllViewsOf gives
+// them, produced as asked: each view not flagged is bounded from below by its quantised
+// rows (Database::view_sketches) and measured only once that bound no longer puts it behind
+// the views measured before — the same views in the same order as sorting AllViewsOf,
+// without reading most views' rows (the widened search ranks every model of the database
+// by its best view, then screens the best views of a few). One thread at a time.
+class LazyViewRanking {
+ public:
+  LazyViewRanking(const StageContext& context, const FineResult& fine,
+                  const FineOptions& options);
+  // The k-th view of `model` in ranking order (k ≥ 0), or null past its last; valid until
+  // the next call.
+  const RankedView* At(int model, int k);
+  // Views measured so far (the flagged ones are not measured again).
+  int measured() const { return measured_; }
+
+ private:
+  struct ModelViews {
+    bool started = false;
+    // The views not yet measured with their lower bounds: a heap, least bound on top.
+    std::vector<std::pair<double, int>> bounds;
+    std::vector<RankedView> pending;  // measured, not yet placed: a heap, first on top
+    std::vector<RankedView> ranked;   // placed, in ranking order
+  };
+  void Start(int model);
+  // A lower bound on Measure(view)'s combined distance (−∞ when the weights give none).
+  double LowerBound(int view) const;
+
+  const StageContext& context_;
+  const FineResult& fine_;
+  const FineOptions options_;
+  std::vector<int> flagged_;  // view → index into fine_.ranked, −1 when not flagged
+  std::vector<ModelViews> models_;
+  int measured_ = 0;
+};
+
 // A pose hypothesis during the pose stages.
 struct PoseCandidate {
   RankedView ranked;  // the view it started from
@@ -176,6 +212,9 @@ struct ScreeningRequest {
   std::vector<int> models;
   int views_per_model = 0;
   bool rank_all_views = false;
+  // With rank_all_views: the caller's ranking of every model's views (its views taken from
+  // it as far as needed); null: each model's are all measured (AllViewsOf).
+  LazyViewRanking* ranking = nullptr;
   PoseOptions hypotheses;
   // > 0: the views are screened stop_chunk at a time in the request's order (model by
   // model, each model's views best-ranked first), and no further chunk once a hypothesis
