@@ -1102,8 +1102,8 @@ const ViewSketches& Database::view_sketches() const {
     s.fine_rows.resize(views);
     for (size_t v = 0; v < views; ++v) {
       const int view = static_cast<int>(v);
-      s.coarse_rows[v] = ViewSketches::Quantise(coarse(view), cd, &s.coarse_codes[v * cd]);
-      s.fine_rows[v] = ViewSketches::Quantise(fine(view), fd, &s.fine_codes[v * fd]);
+      s.coarse_rows[v] = ViewSketches::Quantise(coarse(view), cd, s.coarse_codes.data() + v * cd);
+      s.fine_rows[v] = ViewSketches::Quantise(fine(view), fd, s.fine_codes.data() + v * fd);
     }
   });
   return impl_->sketches;

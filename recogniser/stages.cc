@@ -452,12 +452,12 @@ double LazyViewRanking::LowerBound(int view) const {
   // error, at most the distance to the row (triangle inequality); the whole less 1e-4 of
   // it, at most what Measure computes in float.
   const double fine_bound =
-      ViewSketches::L1To(&sketches.fine_codes[v * fine_dim], fine_row,
+      ViewSketches::L1To(sketches.fine_codes.data() + v * fine_dim, fine_row,
                          context_.query().features.fine.data(), fine_dim) *
           (1.0 - 1e-4) -
       fine_row.l1_error;
   const double coarse_bound =
-      std::sqrt(ViewSketches::SquaredL2To(&sketches.coarse_codes[v * coarse_dim], coarse_row,
+      std::sqrt(ViewSketches::SquaredL2To(sketches.coarse_codes.data() + v * coarse_dim, coarse_row,
                                           context_.coarse().coarse.data(), coarse_dim) *
                 (1.0 - 1e-4)) -
       coarse_row.l2_error;
