@@ -420,28 +420,35 @@ std::vector<RankedView> AllViewsOf(const StageContext& context, const FineResult
   return views;
 }
 
+namespace {
+
+// The heap order of LazyViewRanking's measured views: the first in ranking order on top.
+bool RankedAfter(const RankedView& a, const RankedView& b) { return RankedBefore(b, a); }
+
+}  // namespace
+
 LazyViewRanking::LazyViewRanking(const StageContext& context, const FineResult& fine,
                                  const FineOptions& options)
     : context_(context),
       fine_(fine),
       options_(options),
+      sketches_(context.db().view_sketches()),
+      // Measure: combined = w_f · Σ|a − b| / s_f + w_c · ‖a − b‖ / s_c + w_s · size / s_s,
+      // each term ≥ 0 with weights ≥ 0.
+      bounded_(options.fine_weight >= 0.0 && options.coarse_weight >= 0.0 &&
+               options.size_weight >= 0.0),
       flagged_(context.db().num_views(), -1),
       models_(context.db().num_models()) {
   for (size_t i = 0; i < fine.ranked.size(); ++i) {
     flagged_[fine.ranked[i].view] = static_cast<int>(i);
   }
-  context.db().view_sketches();  // made once per database
 }
 
 double LazyViewRanking::LowerBound(int view) const {
-  // Measure: combined = w_f · Σ|a − b| / s_f + w_c · ‖a − b‖ / s_c + w_s · size / s_s, each
-  // term ≥ 0 with weights ≥ 0; the size term is left out (a log per view).
-  if (options_.fine_weight < 0.0 || options_.coarse_weight < 0.0 ||
-      options_.size_weight < 0.0) {
-    return -std::numeric_limits<double>::infinity();
-  }
+  // The size term is left out (a log per view).
+  if (!bounded_) return -std::numeric_limits<double>::infinity();
   const Database& db = context_.db();
-  const ViewSketches& sketches = db.view_sketches();
+  const ViewSketches& sketches = sketches_;
   const DistanceScales& scales = db.distance_scales();
   const int coarse_dim = db.coarse_dim(), fine_dim = db.fine_dim();
   const size_t v = static_cast<size_t>(view);
@@ -472,11 +479,10 @@ void LazyViewRanking::Start(int model_index) {
   ModelViews& m = models_[model_index];
   m.started = true;
   const ModelRecord& model = context_.db().model(model_index);
-  const auto later = [](const RankedView& a, const RankedView& b) { return RankedBefore(b, a); };
   for (int v = model.first_view; v < model.first_view + model.num_views; ++v) {
     if (flagged_[v] >= 0) {
       m.pending.push_back(fine_.ranked[flagged_[v]]);
-      std::push_heap(m.pending.begin(), m.pending.end(), later);
+      std::push_heap(m.pending.begin(), m.pending.end(), RankedAfter);
     } else {
       m.bounds.emplace_back(LowerBound(v), v);
     }
@@ -488,14 +494,13 @@ void LazyViewRanking::Start(int model_index) {
 const RankedView* LazyViewRanking::At(int model, int k) {
   ModelViews& m = models_[model];
   if (!m.started) Start(model);
-  const auto later = [](const RankedView& a, const RankedView& b) { return RankedBefore(b, a); };
   while (static_cast<int>(m.ranked.size()) <= k) {
     const bool bounds_left = !m.bounds.empty();
     // The first measured view is placed once no view left unmeasured can come before it:
     // each of those is at least its bound, the least of them on top of m.bounds.
     if (!m.pending.empty() &&
         (!bounds_left || m.pending.front().combined < m.bounds.front().first)) {
-      std::pop_heap(m.pending.begin(), m.pending.end(), later);
+      std::pop_heap(m.pending.begin(), m.pending.end(), RankedAfter);
       m.ranked.push_back(m.pending.back());
       m.pending.pop_back();
       continue;
@@ -505,7 +510,7 @@ const RankedView* LazyViewRanking::At(int model, int k) {
     const int v = m.bounds.back().second;
     m.bounds.pop_back();
     m.pending.push_back(context_.Measure(v, context_.HammingTo(v), options_));
-    std::push_heap(m.pending.begin(), m.pending.end(), later);
+    std::push_heap(m.pending.begin(), m.pending.end(), RankedAfter);
     ++measured_;
   }
   return &m.ranked[k];

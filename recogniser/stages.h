@@ -153,6 +153,8 @@ class LazyViewRanking {
   const StageContext& context_;
   const FineResult& fine_;
   const FineOptions options_;
+  const ViewSketches& sketches_;  // the database's, made on first use
+  const bool bounded_;            // the weights ≥ 0: LowerBound has a bound to give
   std::vector<int> flagged_;  // view → index into fine_.ranked, −1 when not flagged
   std::vector<ModelViews> models_;
   int measured_ = 0;
