@@ -400,6 +400,7 @@ RecognitionResult Recogniser::Recognise(const PointCloud& cloud,
   result.recognised = assembly.recognised;
   result.classes = std::move(assembly.classes);
   result.ambiguous_with = std::move(assembly.ambiguous_with);
+  result.other_class_poses = std::move(assembly.other_class_poses);
   result.timing.pose = watch.WallMs();
   result.timing.pose_cpu = watch.CpuMs();
   result.timing.total = total_watch.WallMs();

@@ -347,6 +347,11 @@ struct RecognitionResult {
   // The second class when its probability is within AssemblyOptions::ambiguity_margin of
   // the first's, else empty.
   std::string ambiguous_with;
+  // Per class of `classes` that none of `suggestions` is of, its best suggestion with a
+  // verified pose, when it has one (the class screening posed it, but the cut to top_k
+  // left it out): for callers that look at other classes' poses (a tabletop's other-class
+  // looks). Not part of the answer.
+  std::vector<Suggestion> other_class_poses;
   // False when the best suggestion's verification score is below
   // AssemblyOptions::min_score: "no known object", the suggestions are only guesses.
   bool recognised = false;

@@ -383,18 +383,30 @@ std::vector<uint8_t> ClassLevels(const Database& database) {
 }
 
 // `recognition` with its best posed suggestion of class `class_index` first, as a
-// hypothesis of `cluster`; nullopt when it posed none of that class.
+// hypothesis of `cluster`; nullopt when it posed none of that class — among its
+// suggestions, or with `other_class_poses` also among those the cut to top_k left out
+// (RecognitionResult::other_class_poses).
 std::optional<Hypothesis> ClassSource(const RecognitionResult& recognition, int cluster,
-                                      int class_index) {
-  const auto s = std::find_if(
-      recognition.suggestions.begin(), recognition.suggestions.end(),
-      [&](const Suggestion& x) { return x.posed && x.class_index == class_index; });
-  if (s == recognition.suggestions.end()) return std::nullopt;
+                                      int class_index, bool other_class_poses = false) {
+  const auto of_class = [&](const Suggestion& x) {
+    return x.posed && x.class_index == class_index;
+  };
   Hypothesis source;
   source.cluster = cluster;
+  const auto s =
+      std::find_if(recognition.suggestions.begin(), recognition.suggestions.end(), of_class);
+  if (s != recognition.suggestions.end()) {
+    source.recognition = recognition;
+    std::iter_swap(source.recognition.suggestions.begin(),
+                   source.recognition.suggestions.begin() + (s - recognition.suggestions.begin()));
+    return source;
+  }
+  if (!other_class_poses) return std::nullopt;
+  const std::vector<Suggestion>& others = recognition.other_class_poses;
+  const auto o = std::find_if(others.begin(), others.end(), of_class);
+  if (o == others.end()) return std::nullopt;
   source.recognition = recognition;
-  std::iter_swap(source.recognition.suggestions.begin(),
-                 source.recognition.suggestions.begin() + (s - recognition.suggestions.begin()));
+  source.recognition.suggestions.insert(source.recognition.suggestions.begin(), *o);
   return source;
 }
 
@@ -1913,7 +1925,7 @@ bool AddOtherClassLooks(const SceneContext& ctx, const std::vector<HypothesisEvi
                                const PoseQuery& query, HypothesisPool* looks) {
     const RecognitionResult& recognition = pool->cluster_results[cluster];
     const std::optional<Hypothesis> source =
-        ClassSource(recognition, cluster, class_score.class_index);
+        ClassSource(recognition, cluster, class_score.class_index, true);
     if (!source) return;
     const auto query_of = [&query] { return &query; };
     const std::vector<int> class_models = ModelsOfClass(c.database, class_score.class_index);
@@ -2148,8 +2160,24 @@ void LogHypotheses(const SceneContext& ctx, const HypothesisPool& pool,
                    const std::vector<HypothesisEvidence>& evidence) {
   if (!spdlog::should_log(spdlog::level::debug)) return;
   const std::vector<Hypothesis>& hypotheses = pool.hypotheses;
+  std::map<int, int> explained_by;  // scene point → accepted hypothesis explaining it
+  for (size_t h = 0; h < hypotheses.size(); ++h) {
+    if (!evidence[h].accepted) continue;
+    for (const int j : evidence[h].explained) explained_by.emplace(j, static_cast<int>(h));
+  }
   for (size_t h = 0; h < hypotheses.size(); ++h) {
     const Suggestion& s = hypotheses[h].recognition.suggestions[0];
+    // Which accepted hypotheses explain its points (the duplicates its gain paid for).
+    std::map<int, int> taken_by;  // accepted hypothesis → points of this one it explains
+    for (const int j : evidence[h].explained) {
+      const auto it = explained_by.find(j);
+      if (it != explained_by.end() && it->second != static_cast<int>(h)) ++taken_by[it->second];
+    }
+    std::string taken;
+    for (const auto& [g, n] : taken_by) taken += fmt::format(" {}:{}", g, n);
+    spdlog::debug("hypothesis {}: its explained points that accepted ones explain:{}{}", h,
+                  taken.empty() ? " none" : taken,
+                  evidence[h].overlapping ? "; fills an accepted one's space" : "");
     const HypothesisEvidence& e = evidence[h];
     const Eigen::Vector3f& c = ctx.clusters[hypotheses[h].cluster].centroid;
     spdlog::debug("hypothesis cluster={} centroid=({:.4f},{:.4f},{:.4f}) class={} model={} "

@@ -920,8 +920,13 @@ Assembly AssembleSuggestions(StageContext* context, const FineResult& fine,
     }
   }
   std::vector<int> seen;
-  for (Suggestion& s : ordered) {
-    if (static_cast<int>(result.suggestions.size()) >= options.top_k) break;
+  size_t cut = ordered.size();  // the suggestions after the cut to top_k start here
+  for (size_t k = 0; k < ordered.size(); ++k) {
+    Suggestion& s = ordered[k];
+    if (static_cast<int>(result.suggestions.size()) >= options.top_k) {
+      cut = k;
+      break;
+    }
     int key = -1;
     if (options.grouping == SuggestionGrouping::kModel) key = s.model;
     if (options.grouping == SuggestionGrouping::kClass) key = s.class_index;
@@ -930,6 +935,18 @@ Assembly AssembleSuggestions(StageContext* context, const FineResult& fine,
       seen.push_back(key);
     }
     result.suggestions.push_back(std::move(s));
+  }
+  // The classes the cut left without a suggestion: their best posed ones (`ordered` keeps
+  // each class's best first after the cut, as before it).
+  for (const ClassScore& class_score : result.classes) {
+    const int c = class_score.class_index;
+    const auto has_class = [c](const Suggestion& s) { return s.class_index == c; };
+    if (std::any_of(result.suggestions.begin(), result.suggestions.end(), has_class)) continue;
+    const auto best = std::find_if(ordered.begin() + cut, ordered.end(),
+                                   [c](const Suggestion& s) {
+                                     return s.posed && s.class_index == c;
+                                   });
+    if (best != ordered.end()) result.other_class_poses.push_back(*best);
   }
   // Suggestions without a verified pose still get the roll about the line of sight (the
   // best signature correlation), so their pose is the unrefined estimate, not the bare

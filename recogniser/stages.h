@@ -292,6 +292,7 @@ struct Assembly {
   bool recognised = false;              // see RecognitionResult::recognised
   std::vector<ClassScore> classes;      // see RecognitionResult::classes
   std::string ambiguous_with;           // see RecognitionResult::ambiguous_with
+  std::vector<Suggestion> other_class_poses;  // see RecognitionResult::other_class_poses
 };
 // Posed candidates first (re-ranked by AssemblyOptions), then the rest of the fine
 // ranking; with class ranking the best suggestion of the most probable class moved to the
