@@ -1450,6 +1450,7 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
   struct Join {
     bool partner_is_cluster = false;
     int cluster_a = 0, cluster_b = 0, owner = 0;
+    int object_class = -1;  // the accepted object's class (partner an object)
     PointCloud joined;
   };
   std::vector<Join> joins;
@@ -1463,6 +1464,10 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
     if (!pool->joined.emplace(a, partner).second) continue;  // joined in an earlier round
     Join join;
     join.partner_is_cluster = b < num_clusters || b >= first_remainder;
+    if (!join.partner_is_cluster) {
+      const Hypothesis& object = pool->hypotheses[accepted[b - num_clusters]];
+      join.object_class = object.recognition.suggestions[0].class_index;
+    }
     join.cluster_a = points_of(a, &join.joined);
     const size_t size_a = join.joined.size();
     join.cluster_b = points_of(b, &join.joined);
@@ -1486,7 +1491,12 @@ bool AddJoinedHypotheses(const SceneContext& ctx, const std::vector<HypothesisEv
         }
         // An unseen instance two unexplained clusters make up: the size looks of the class
         // ranked first, sized to the joined points (SceneRecognitionOptions::join_size_looks).
-        if (c.options.join_size_looks && joins[k].partner_is_cluster) {
+        // With an accepted object's points, when the joined points rank another class
+        // first than the object's (object_join_size_looks).
+        const bool new_class = !recognition.classes.empty() &&
+                               recognition.classes.front().class_index != joins[k].object_class;
+        if (c.options.join_size_looks &&
+            (joins[k].partner_is_cluster || (c.options.object_join_size_looks && new_class))) {
           AddSizeLooksOn(c, recognition, owner, joined, joined_query.Getter(), looks);
         }
       });
