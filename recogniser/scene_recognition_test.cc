@@ -358,6 +358,18 @@ TEST(SceneRecognitionCategories, AnUnseenInstanceIsTakenForTheClassOnlyInACatego
 
 // A database (preset "sope", 80 views per model) of procedural instances, `instances`
 // giving each class and its seeds (model names CLASS_SEED), written into `scratch`.
+// The last recognised object whose pose puts `mesh`'s centre within `max_distance` of
+// `centre` (null: none).
+const RecognisedObject* LastNear(const SceneRecognitionResult& result, const TriangleMesh& mesh,
+                                 const Eigen::Vector3d& centre, double max_distance) {
+  const Eigen::Vector3d mesh_centre = MakePoseTruthModel(mesh).center;
+  const RecognisedObject* found = nullptr;
+  for (const RecognisedObject& o : result.objects) {
+    if ((o.best().cam_from_model * mesh_centre - centre).norm() < max_distance) found = &o;
+  }
+  return found;
+}
+
 // The last recognised object whose best suggestion is of class `name` (null: none).
 const RecognisedObject* LastOfClass(const SceneRecognitionResult& result,
                                     const std::string& name) {
@@ -413,11 +425,7 @@ TEST(SceneRecognitionSiblings, UnseenBowlsArePosedWithTheDatabaseBowlNearestInSi
     EXPECT_NE(LastOfClass(result, "mug"), nullptr);
     for (const Truth& t : bowls) {
       const Eigen::Vector3d centre = t.pose * MakePoseTruthModel(t.mesh).center;
-      const RecognisedObject* found = nullptr;
-      for (const RecognisedObject& o : result.objects) {
-        const Eigen::Vector3d c = o.best().cam_from_model * MakePoseTruthModel(t.mesh).center;
-        if ((c - centre).norm() < 0.05) found = &o;
-      }
+      const RecognisedObject* found = LastNear(result, t.mesh, centre, 0.05);
       ASSERT_NE(found, nullptr) << "the unseen bowl nearest " << t.nearest << " was not found";
       const PoseComparison error = ComparePoses(found->best().cam_from_model, t.pose, t.mesh);
       // The database bowl is another instance, of another height (bowl 12 is 1.1 cm lower
@@ -527,11 +535,7 @@ TEST(SceneRecognitionClassEvidence, AMugWithItsHandleUpIsFoundFromAPoseBelowTheC
   const SceneRecognitionResult result = SceneRecogniser(*db).Recognise(cloud);
   std::printf("%s\n", SceneBriefReport(result).c_str());
   const Eigen::Vector3d centre = mug_pose * MakePoseTruthModel(mug).center;
-  const RecognisedObject* found = nullptr;
-  for (const RecognisedObject& o : result.objects) {
-    const Eigen::Vector3d c = o.best().cam_from_model * MakePoseTruthModel(mug).center;
-    if ((c - centre).norm() < 0.04) found = &o;
-  }
+  const RecognisedObject* found = LastNear(result, mug, centre, 0.04);
   ASSERT_NE(found, nullptr) << "the mug was not found within 4 cm";
   EXPECT_EQ(found->best().class_name, "mug");
   const Eigen::Vector3d true_handle = mug_pose.rotation.col(0);
@@ -583,11 +587,7 @@ TEST(SceneRecognitionRolls, AClusterTheFirstClassExplainsGetsNoOtherClassTurns) 
   for (const auto& [mesh, pose, name] :
        {std::make_tuple(&glass, &glass_pose, "glass"), std::make_tuple(&mug, &mug_pose, "mug")}) {
     const Eigen::Vector3d centre = *pose * MakePoseTruthModel(*mesh).center;
-    const RecognisedObject* found = nullptr;
-    for (const RecognisedObject& o : result.objects) {
-      const Eigen::Vector3d c = o.best().cam_from_model * MakePoseTruthModel(*mesh).center;
-      if ((c - centre).norm() < 0.05) found = &o;
-    }
+    const RecognisedObject* found = LastNear(result, *mesh, centre, 0.05);
     ASSERT_NE(found, nullptr) << name << " not found within 5 cm";
     EXPECT_EQ(found->best().class_name, name);
     const PoseComparison error = ComparePoses(found->best().cam_from_model, *pose, *mesh);
