@@ -459,7 +459,8 @@ Choice ChooseBlock(const AxisFrames& axis, const std::vector<float>& margins, fl
 }  // namespace internal
 
 void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& options,
-                                  CorrespondenceMap* map, const cv::Mat& region) {
+                                  CorrespondenceMap* map, const cv::Mat& region,
+                                  const cv::Mat& seeds) {
   using namespace internal;
   SOPE_CHECK(map != nullptr, "FillFromConsistentNeighbours: no map");
   const FrameSetManifest& manifest = frames.manifest;
@@ -471,6 +472,11 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
              "FillFromConsistentNeighbours: the region must be empty or 8-bit {}x{}, got {}x{} "
              "of type {}",
              map->width(), map->height(), region.cols, region.rows, region.type());
+  SOPE_CHECK(seeds.empty() || (seeds.type() == CV_8UC1 && seeds.cols == map->width() &&
+                               seeds.rows == map->height()),
+             "FillFromConsistentNeighbours: the seeds must be empty or 8-bit {}x{}, got {}x{} "
+             "of type {}",
+             map->width(), map->height(), seeds.cols, seeds.rows, seeds.type());
   std::vector<AxisFrames> axes;
   for (PatternAxis axis : {PatternAxis::kX, PatternAxis::kY}) {
     const bool coded = axis == PatternAxis::kX ? map->HasX() : map->HasY();
@@ -539,6 +545,21 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     int x = 0, y = 0;
     float coordinate[2] = {kNaN, kNaN};
     float confidence = 0.0f;
+    bool seed = false;  // with `seeds`: the filled pixel is one
+  };
+  // With `seeds`: the seeds so far (the given ones and the fills that became seeds; a
+  // pass reads it as it was before the pass, as the map).
+  cv::Mat seed;
+  if (!seeds.empty()) cv::compare(seeds, 0, seed, cv::CMP_NE);
+  // The seeds in the window around (x, y).
+  const auto seeds_near = [&](int x, int y) {
+    const int x0 = std::max(0, x - radius), x1 = std::min(cols - 1, x + radius);
+    int n = 0;
+    for (int yy = std::max(0, y - radius); yy <= std::min(rows - 1, y + radius); ++yy) {
+      const uint8_t* row = seed.ptr<uint8_t>(yy);
+      for (int xx = x0; xx <= x1; ++xx) n += row[xx] != 0;
+    }
+    return n;
   };
   // The pixels a pass decides (undecoded, with enough contrast; after the first pass near
   // a fill of the pass before), and the marks of the windows around the fills (a scratch
@@ -578,6 +599,8 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
     const auto decide = [&](int x, int y, Scratch* scratch, Fill* out) -> bool {
       std::vector<float>& margins = scratch->margins;
       Neighbourhood& neighbours = scratch->neighbours;
+      const int near_seeds = seed.empty() ? 0 : seeds_near(x, y);
+      if (!seed.empty() && near_seeds == 0) return false;  // not on a seed's surface
       neighbours.Resize(window);
       const float contrast = contrast_at(x, y);
       decoded_neighbours(x, y, &neighbours);
@@ -664,6 +687,7 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       Fill& fill = *out;
       fill.x = x;
       fill.y = y;
+      fill.seed = !seed.empty() && 2 * near_seeds >= count;
       fill.confidence = 1.0f;
       for (size_t a = 0; a < axes.size(); ++a) {
         fill.coordinate[a] = choices[a].coordinate;
@@ -725,6 +749,7 @@ void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& 
       }
       map->mask.at<uint8_t>(fill.y, fill.x) = 255;
       map->confidence.at<float>(fill.y, fill.x) = fill.confidence;
+      if (fill.seed) seed.at<uint8_t>(fill.y, fill.x) = 255;
     }
     // The next pass's candidates: the pixels still undecoded within a fill's window, with
     // enough contrast, in row-major order (a pass's decisions do not depend on their

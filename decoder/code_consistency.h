@@ -31,7 +31,13 @@ namespace sope {
 // `region` (CV_8UC1 of the camera size, or empty: everywhere) limits the filled pixels to
 // its non-zero ones (decoded neighbours outside it still count): a tabletop scan fills
 // only near what stands on the table (recogniser/tools/scan_recognition.h).
+// `seeds` (CV_8UC1 of the camera size, or empty: no such limit) marks the decoded pixels
+// the fills grow from (a tabletop scan: those whose points stand on the table): a pixel is
+// decided only when its window holds a seed, and a filled pixel is a seed when at least
+// half its decoded neighbours are — the fills spread over the surfaces of the seeds, not
+// across the table around them.
 void FillFromConsistentNeighbours(const FrameSet& frames, const DecoderOptions& options,
-                                  CorrespondenceMap* map, const cv::Mat& region = cv::Mat());
+                                  CorrespondenceMap* map, const cv::Mat& region = cv::Mat(),
+                                  const cv::Mat& seeds = cv::Mat());
 
 }  // namespace sope

@@ -591,10 +591,13 @@ TEST(TableJoins, AnObjectTouchingAnotherIsJoinedWithItsPartByItsRemainder) {
 }
 
 // Tabletop scans (ScanTableFrameSet): the code consistency fills only near what stands on
-// the table — on scene 0 of the procedural evaluation with seed 301, the points standing on
-// the table are those of the whole-image consistency within 0.5%, while most of its fills
-// (those on the table plane) are not made; a plain map decoded beforehand (the live loop's
-// way) gives the same cloud, and without consistency the scan is the usual one.
+// the table, growing from the pixels whose points stand on it — on scene 0 of the
+// procedural evaluation with seed 301, the points standing on the table are those of the
+// whole-image consistency within 0.5%, while most of its fills (those on the table plane)
+// are not made: 19.2k of its 73.5k (30.2k when the fills grew from every decoded pixel
+// near the objects, before 2026-12-07; standing points 271,794 and 271,796 of 271,796); a
+// plain map decoded beforehand (the live loop's way) gives the same cloud, and without
+// consistency the scan is the usual one.
 TEST(TableScan, FillsOnlyNearWhatStandsOnTheTable) {
   const SourceScan scan = EvaluationTableScene(301, 0);
   // The source gives no range band from the scene's truth (a live rig has none): the
@@ -626,7 +629,7 @@ TEST(TableScan, FillsOnlyNearWhatStandsOnTheTable) {
   std::printf("fills: whole image %.0f, tabletop %.0f; points standing on the table %d / %d\n",
               whole_fills, table_fills, whole_standing, table_standing);
   ASSERT_GT(whole_fills, 10000.0);
-  EXPECT_LT(table_fills, 0.5 * whole_fills);
+  EXPECT_LT(table_fills, 0.3 * whole_fills);
   EXPECT_GT(whole_standing, 20000);
   EXPECT_NEAR(table_standing, whole_standing, 0.005 * whole_standing);
 

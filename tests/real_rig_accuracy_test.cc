@@ -265,5 +265,69 @@ TEST(GrazingCoverage, ConsistencyFillsOnlyInsideItsRegion) {
       Error, "the region must be empty or 8-bit");
 }
 
+// Seeds (the decoded pixels the fills grow from; a tabletop scan's are those standing on
+// the table): with the decoded pixels left of the column that halves the whole image's
+// fills as seeds, the fills there are those of the whole image away from that column, and
+// they spread only a few pixels right of it, where the whole-image consistency fills as
+// much.
+TEST(GrazingCoverage, ConsistencyFillsGrowFromTheSeedsOnly) {
+  const SimulatedScan scan =
+      GrazingScene(MakeSphere(0.09, 64, 128), Eigen::Vector3d(-0.12, 0.0, 0.62), 0.4);
+  DecoderOptions options;  // no sub-pixel edges: the fills' coordinates compare exactly
+  options.consistency.enabled = true;
+  DecoderOptions plain_options = options;
+  plain_options.consistency.enabled = false;
+  const CorrespondenceMap plain = Decode(scan.frames, plain_options);
+  const CorrespondenceMap whole = Decode(scan.frames, options);
+  const int rows = plain.height(), cols = plain.width();
+  std::vector<int> filled_columns;
+  for (int y = 0; y < rows; ++y) {
+    for (int x = 0; x < cols; ++x) {
+      if (!plain.mask.at<uint8_t>(y, x) && whole.mask.at<uint8_t>(y, x)) {
+        filled_columns.push_back(x);
+      }
+    }
+  }
+  ASSERT_FALSE(filled_columns.empty());
+  std::nth_element(filled_columns.begin(), filled_columns.begin() + filled_columns.size() / 2,
+                   filled_columns.end());
+  const int half = filled_columns[filled_columns.size() / 2];
+  cv::Mat seeds = cv::Mat::zeros(rows, cols, CV_8UC1);
+  plain.mask.colRange(0, half).copyTo(seeds.colRange(0, half));
+  CorrespondenceMap seeded = Decode(scan.frames, plain_options);
+  FillFromConsistentNeighbours(scan.frames, options, &seeded, cv::Mat(), seeds);
+  const int reach = 8 * 3;
+  int whole_left = 0, whole_right = 0, seeded_right = 0, differ_away_from_edge = 0;
+  int right_beyond_a_window = 0;
+  for (int y = 0; y < rows; ++y) {
+    for (int x = 0; x < cols; ++x) {
+      const bool was = plain.mask.at<uint8_t>(y, x) != 0;
+      const bool now = seeded.mask.at<uint8_t>(y, x) != 0;
+      const bool filled_whole = !was && whole.mask.at<uint8_t>(y, x) != 0;
+      if (x >= half) {
+        whole_right += filled_whole;
+        seeded_right += now && !was;
+        right_beyond_a_window += now && !was && x >= half + 2 * options.consistency.window_radius;
+        continue;
+      }
+      whole_left += filled_whole;
+      if (x < half - reach) differ_away_from_edge += now != (was || filled_whole);
+    }
+  }
+  std::printf("fills of the whole image: %d left, %d right; grown from the seeds on the left: "
+              "%d right (%d beyond a window)\n",
+              whole_left, whole_right, seeded_right, right_beyond_a_window);
+  ASSERT_GT(whole_left, 1000);
+  ASSERT_GT(whole_right, 1000);
+  EXPECT_EQ(differ_away_from_edge, 0);
+  EXPECT_LT(seeded_right, 0.1 * whole_right);
+  EXPECT_LT(right_beyond_a_window, 0.01 * whole_right);
+  // Seeds of the wrong size are refused.
+  CorrespondenceMap refused = Decode(scan.frames, plain_options);
+  EXPECT_THROW_WITH_MESSAGE(FillFromConsistentNeighbours(scan.frames, options, &refused,
+                                                         cv::Mat(), cv::Mat::zeros(3, 3, CV_8UC1)),
+                            Error, "the seeds must be empty or 8-bit");
+}
+
 }  // namespace
 }  // namespace sope

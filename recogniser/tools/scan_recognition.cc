@@ -148,10 +148,12 @@ ScanResult ScanTableFrameSet(const FrameSet& frames, const Triangulator& triangu
   const double first_ms = watch.WallMs();
 
   watch.Restart();
-  cv::Mat region;  // empty: everywhere
+  // Where the consistency fills, and the pixels its fills grow from (empty: everywhere,
+  // from every decoded pixel).
+  cv::Mat region, off_table;
   const TablePlane plane = FindTablePlane(first.cloud, segmentation);
   if (plane.found) {
-    cv::Mat off_table = cv::Mat::zeros(map.height(), map.width(), CV_8UC1);
+    off_table = cv::Mat::zeros(map.height(), map.width(), CV_8UC1);
     const std::vector<Eigen::Vector3f>& points = first.cloud.points;
     const float min_height = static_cast<float>(segmentation.min_height);
     const float max_height = static_cast<float>(segmentation.max_height);
@@ -171,7 +173,7 @@ ScanResult ScanTableFrameSet(const FrameSet& frames, const Triangulator& triangu
     cv::dilate(off_table, region,
                cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * reach + 1, 2 * reach + 1)));
   }
-  FillFromConsistentNeighbours(frames, options, &map, region);
+  FillFromConsistentNeighbours(frames, options, &map, region, off_table);
   if (edges) RefineGraySubpixel(frames, &map);
   decode_ms += watch.WallMs();
   ScanResult result = ScanDecoded(frames, std::move(map), decode_ms, triangulator);

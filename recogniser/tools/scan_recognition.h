@@ -108,9 +108,11 @@ ScanRecognition RecogniseFrameSet(const FrameSet& frames, const RigCalibration& 
 // triangulated, the table plane is found in those points (FindTablePlane with
 // `segmentation`'s range band and plane options), and the consistency fills only pixels
 // within its reach (passes × window radius) of a point standing on the table
-// (min_height–max_height above it, in the range band; everywhere when there is no plane):
-// the fills of what stands on the table are those of the whole image but for any reached
-// only across the table. Then the sub-pixel edges, when on, and the triangulation of the
+// (min_height–max_height above it, in the range band; everywhere when there is no plane),
+// growing from those points (their pixels its seeds, FillFromConsistentNeighbours): the
+// fills of what stands on the table are those of the whole image but for any reached only
+// across the table, and the table around the objects is left as decoded (procedural
+// tables: 19k fills of a scene instead of 30k; ~10 ms less after the last frame). Then the sub-pixel edges, when on, and the triangulation of the
 // whole map. Phase sets and options without consistency: the usual scan (ScanFrameSet /
 // ScanDecoded). decode_ms counts the decoding, the plane and the region; triangulate_ms
 // both triangulations.
