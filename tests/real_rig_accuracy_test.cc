@@ -207,20 +207,37 @@ TEST(GrazingCoverage, SphereAndCylinderLitFromTheSide) {
   }
 }
 
+// The grazing sphere decoded without code consistency (`plain`) and with it over the whole
+// image (`whole`), no sub-pixel edges: the fills' coordinates compare exactly.
+struct GrazingSphereFills {
+  SimulatedScan scan =
+      GrazingScene(MakeSphere(0.09, 64, 128), Eigen::Vector3d(-0.12, 0.0, 0.62), 0.4);
+  DecoderOptions options = [] {
+    DecoderOptions o;
+    o.consistency.enabled = true;
+    return o;
+  }();
+  DecoderOptions plain_options = [this] {
+    DecoderOptions o = options;
+    o.consistency.enabled = false;
+    return o;
+  }();
+  CorrespondenceMap plain = Decode(scan.frames, plain_options);
+  CorrespondenceMap whole = Decode(scan.frames, options);
+};
+
 // FillFromConsistentNeighbours' region (tabletop scans fill only near what stands on the
 // table): on the grazing sphere, a region of every pixel gives the whole image's fills
 // exactly; the left half of the image fills there as the whole-image pass does away from
 // the region's edge (within the consistency's reach of it: 8 passes × radius 3) and
 // nowhere else.
 TEST(GrazingCoverage, ConsistencyFillsOnlyInsideItsRegion) {
-  const SimulatedScan scan =
-      GrazingScene(MakeSphere(0.09, 64, 128), Eigen::Vector3d(-0.12, 0.0, 0.62), 0.4);
-  DecoderOptions options;  // no sub-pixel edges: the fills' coordinates compare exactly
-  options.consistency.enabled = true;
-  DecoderOptions plain_options = options;
-  plain_options.consistency.enabled = false;
-  const CorrespondenceMap plain = Decode(scan.frames, plain_options);
-  const CorrespondenceMap whole = Decode(scan.frames, options);
+  const GrazingSphereFills sphere;
+  const SimulatedScan& scan = sphere.scan;
+  const DecoderOptions& options = sphere.options;
+  const DecoderOptions& plain_options = sphere.plain_options;
+  const CorrespondenceMap& plain = sphere.plain;
+  const CorrespondenceMap& whole = sphere.whole;
   const int rows = plain.height(), cols = plain.width();
 
   CorrespondenceMap everywhere = Decode(scan.frames, plain_options);
@@ -271,14 +288,12 @@ TEST(GrazingCoverage, ConsistencyFillsOnlyInsideItsRegion) {
 // they spread only a few pixels right of it, where the whole-image consistency fills as
 // much.
 TEST(GrazingCoverage, ConsistencyFillsGrowFromTheSeedsOnly) {
-  const SimulatedScan scan =
-      GrazingScene(MakeSphere(0.09, 64, 128), Eigen::Vector3d(-0.12, 0.0, 0.62), 0.4);
-  DecoderOptions options;  // no sub-pixel edges: the fills' coordinates compare exactly
-  options.consistency.enabled = true;
-  DecoderOptions plain_options = options;
-  plain_options.consistency.enabled = false;
-  const CorrespondenceMap plain = Decode(scan.frames, plain_options);
-  const CorrespondenceMap whole = Decode(scan.frames, options);
+  const GrazingSphereFills sphere;
+  const SimulatedScan& scan = sphere.scan;
+  const DecoderOptions& options = sphere.options;
+  const DecoderOptions& plain_options = sphere.plain_options;
+  const CorrespondenceMap& plain = sphere.plain;
+  const CorrespondenceMap& whole = sphere.whole;
   const int rows = plain.height(), cols = plain.width();
   std::vector<int> filled_columns;
   for (int y = 0; y < rows; ++y) {
