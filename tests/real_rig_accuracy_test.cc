@@ -233,11 +233,7 @@ struct GrazingSphereFills {
 // nowhere else.
 TEST(GrazingCoverage, ConsistencyFillsOnlyInsideItsRegion) {
   const GrazingSphereFills sphere;
-  const SimulatedScan& scan = sphere.scan;
-  const DecoderOptions& options = sphere.options;
-  const DecoderOptions& plain_options = sphere.plain_options;
-  const CorrespondenceMap& plain = sphere.plain;
-  const CorrespondenceMap& whole = sphere.whole;
+  const auto& [scan, options, plain_options, plain, whole] = sphere;
   const int rows = plain.height(), cols = plain.width();
 
   CorrespondenceMap everywhere = Decode(scan.frames, plain_options);
@@ -289,11 +285,7 @@ TEST(GrazingCoverage, ConsistencyFillsOnlyInsideItsRegion) {
 // much.
 TEST(GrazingCoverage, ConsistencyFillsGrowFromTheSeedsOnly) {
   const GrazingSphereFills sphere;
-  const SimulatedScan& scan = sphere.scan;
-  const DecoderOptions& options = sphere.options;
-  const DecoderOptions& plain_options = sphere.plain_options;
-  const CorrespondenceMap& plain = sphere.plain;
-  const CorrespondenceMap& whole = sphere.whole;
+  const auto& [scan, options, plain_options, plain, whole] = sphere;
   const int rows = plain.height(), cols = plain.width();
   std::vector<int> filled_columns;
   for (int y = 0; y < rows; ++y) {
