@@ -356,8 +356,6 @@ TEST(SceneRecognitionCategories, AnUnseenInstanceIsTakenForTheClassOnlyInACatego
   }
 }
 
-// A database (preset "sope", 80 views per model) of procedural instances, `instances`
-// giving each class and its seeds (model names CLASS_SEED), written into `scratch`.
 // The last recognised object whose pose puts `mesh`'s centre within `max_distance` of
 // `centre` (null: none).
 const RecognisedObject* LastNear(const SceneRecognitionResult& result, const TriangleMesh& mesh,

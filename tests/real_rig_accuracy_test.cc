@@ -249,7 +249,7 @@ TEST(GrazingCoverage, ConsistencyFillsOnlyInsideItsRegion) {
   left.colRange(0, half).setTo(255);
   CorrespondenceMap inside = Decode(scan.frames, plain_options);
   FillFromConsistentNeighbours(scan.frames, options, &inside, left);
-  const int reach = 8 * 3;
+  const int reach = options.consistency.passes * options.consistency.window_radius;
   int filled_outside = 0, filled_inside = 0, whole_inside = 0, differ_away_from_edge = 0;
   for (int y = 0; y < rows; ++y) {
     for (int x = 0; x < cols; ++x) {
@@ -303,7 +303,7 @@ TEST(GrazingCoverage, ConsistencyFillsGrowFromTheSeedsOnly) {
   plain.mask.colRange(0, half).copyTo(seeds.colRange(0, half));
   CorrespondenceMap seeded = Decode(scan.frames, plain_options);
   FillFromConsistentNeighbours(scan.frames, options, &seeded, cv::Mat(), seeds);
-  const int reach = 8 * 3;
+  const int reach = options.consistency.passes * options.consistency.window_radius;
   int whole_left = 0, whole_right = 0, seeded_right = 0, differ_away_from_edge = 0;
   int right_beyond_a_window = 0;
   for (int y = 0; y < rows; ++y) {
