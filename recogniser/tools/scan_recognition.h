@@ -113,9 +113,9 @@ ScanRecognition RecogniseFrameSet(const FrameSet& frames, const RigCalibration& 
 // fills of what stands on the table are those of the whole image but for any reached only
 // across the table, and the table around the objects is left as decoded (procedural
 // tables: 19k fills of a scene instead of 30k; ~10 ms less after the last frame). Then
-// the sub-pixel edges, when on, and the triangulation of the whole map. Phase sets and options without consistency: the usual scan (ScanFrameSet /
-// ScanDecoded). decode_ms counts the decoding, the plane and the region; triangulate_ms
-// both triangulations.
+// the sub-pixel edges, when on, and the triangulation of the whole map. Phase sets and
+// options without consistency: the usual scan (ScanFrameSet / ScanDecoded). decode_ms
+// counts the decoding, the plane and the region; triangulate_ms both triangulations.
 struct TableSegmentationOptions;
 DecoderOptions PlainTableDecoderOptions(const DecoderOptions& options);
 ScanResult ScanTableFrameSet(const FrameSet& frames, const Triangulator& triangulator,
